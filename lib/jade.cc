@@ -1,0 +1,589 @@
+/* -*- c++ -*- */
+/*
+ * SPDX-License-Identifier: GPL-3.0-or-later
+ */
+#include <gnuradio/thrumapper/jade.h>
+#include <gnuradio/thrumapper/manifold.h>
+#include <Eigen/Eigenvalues>
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+namespace gr {
+namespace thrumapper {
+
+using cd = std::complex<double>;
+using cf = std::complex<float>;
+using RowMajorCf = Eigen::Matrix<cf, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+
+namespace {
+constexpr double two_pi = 2.0 * M_PI;
+// Largest pseudo-spectrum reported: the projection residual is floored at 1e-6.
+constexpr double min_residual = 1e-6;
+
+double wrap_angle(double a)
+{
+    a = std::fmod(a, two_pi);
+    return a < 0 ? a + two_pi : a;
+}
+
+void check_grid(const std::vector<double>& g, const char* name)
+{
+    if (g.empty())
+        throw std::invalid_argument(std::string(name) + ": the grid is empty");
+    for (double v : g)
+        if (!std::isfinite(v))
+            throw std::invalid_argument(std::string(name) + ": grid values must be finite");
+}
+} // namespace
+
+jade::jade(radar_description::sptr radar,
+           const std::vector<double>& angles_rad,
+           const std::vector<double>& delays_s,
+           int smoothing_window,
+           int max_paths)
+    : d_radar(radar),
+      d_fixed_order(0),
+      d_order_threshold(5.0),
+      d_system_delay_s(0.0),
+      d_refine(true),
+      d_order(0)
+{
+    if (!radar)
+        throw std::invalid_argument("jade: a radar description is required");
+    if (!radar->uniform_spacing())
+        throw std::invalid_argument(
+            "jade: subcarrier smoothing needs uniformly spaced subcarriers");
+    d_M = radar->num_rx();
+    d_N = radar->num_subcarriers();
+    d_df_hz = radar->subcarrier_spacing_hz();
+    d_k_rad_m = two_pi * radar->carrier_hz() / speed_of_light_m_s;
+    const Eigen::Vector2d c = radar->rx_centre_m();
+    d_rx_x = radar->rx_elements_m().col(0).array() - c.x();
+    d_rx_y = radar->rx_elements_m().col(1).array() - c.y();
+    check_grid(angles_rad, "angles_rad");
+    check_grid(delays_s, "delays_s");
+    d_angles = angles_rad;
+    d_delays = delays_s;
+    set_max_paths(max_paths);
+    d_L = 0;
+    set_smoothing_window(smoothing_window); // builds the grids
+}
+
+std::vector<double> jade::full_circle_grid(int count)
+{
+    if (count < 3)
+        throw std::invalid_argument("full_circle_grid: at least 3 angles are needed");
+    std::vector<double> g(count);
+    for (int i = 0; i < count; i++)
+        g[i] = two_pi * i / count;
+    return g;
+}
+
+std::vector<double> jade::linear_grid(double start, double stop, int count)
+{
+    if (count < 2)
+        throw std::invalid_argument("linear_grid: at least 2 points are needed");
+    if (!(stop > start))
+        throw std::invalid_argument("linear_grid: stop must be above start");
+    std::vector<double> g(count);
+    for (int i = 0; i < count; i++)
+        g[i] = start + (stop - start) * i / (count - 1);
+    return g;
+}
+
+void jade::set_angle_grid(const std::vector<double>& angles_rad)
+{
+    check_grid(angles_rad, "angles_rad");
+    d_angles = angles_rad;
+    rebuild_grids();
+}
+
+void jade::set_delay_grid(const std::vector<double>& delays_s)
+{
+    check_grid(delays_s, "delays_s");
+    d_delays = delays_s;
+    rebuild_grids();
+}
+
+void jade::set_smoothing_window(int subcarriers)
+{
+    // N/3 balances the aperture of the window (M·L) against that of the snapshots
+    // (N-L+1): with N/2 the snapshots resolve crowded delays poorly (docs/estimator.md).
+    const int L = subcarriers == 0 ? (d_N + 1) / 3 : subcarriers;
+    if (L < 2 || L > d_N - 1)
+        throw std::invalid_argument("smoothing_window: expected 2 to N-1 = " +
+                                    std::to_string(d_N - 1) + " subcarriers (0 for N/3), got " +
+                                    std::to_string(subcarriers));
+    d_L = L;
+    rebuild_grids();
+}
+
+void jade::set_max_paths(int max_paths)
+{
+    if (max_paths < 1 || max_paths > 64)
+        throw std::invalid_argument("max_paths: expected 1 to 64, got " + std::to_string(max_paths));
+    d_max_paths = max_paths;
+}
+
+void jade::set_model_order(int order)
+{
+    if (order < 0 || order > 64)
+        throw std::invalid_argument("model_order: expected 0 (automatic) to 64, got " +
+                                    std::to_string(order));
+    d_fixed_order = order;
+}
+
+void jade::set_order_threshold(double factor)
+{
+    if (!(factor > 1.0) || !std::isfinite(factor))
+        throw std::invalid_argument("order_threshold: expected a factor above 1");
+    d_order_threshold = factor;
+}
+
+void jade::set_system_delay(double system_delay_s)
+{
+    if (!std::isfinite(system_delay_s))
+        throw std::invalid_argument("system_delay_s must be finite");
+    d_system_delay_s = system_delay_s;
+    rebuild_grids();
+}
+
+void jade::set_refine(bool refine) { d_refine = refine; }
+
+void jade::rebuild_grids()
+{
+    const int A = d_angles.size(), D = d_delays.size();
+    d_Ah.resize(A, d_M);
+    for (int a = 0; a < A; a++) {
+        const double ux = std::cos(d_angles[a]), uy = std::sin(d_angles[a]);
+        for (int m = 0; m < d_M; m++)
+            d_Ah(a, m) = std::polar(1.0f, float(-d_k_rad_m * (d_rx_x(m) * ux + d_rx_y(m) * uy)));
+    }
+    // The smoothing window's own first subcarrier is the phase reference of g: a path's
+    // scalar phase does not change the subspace.
+    d_Gc.resize(d_L, D);
+    for (int d = 0; d < D; d++) {
+        const double tau = d_delays[d] + d_system_delay_s;
+        for (int l = 0; l < d_L; l++) {
+            // reduce the phase in double before the float conversion
+            const double ph = std::fmod(two_pi * l * d_df_hz * tau, two_pi);
+            d_Gc(l, d) = std::polar(1.0f, float(ph));
+        }
+    }
+    // Is the angle grid a uniform full circle? Then peaks wrap around.
+    d_full_circle = false;
+    if (A >= 3) {
+        const double step = d_angles[1] - d_angles[0];
+        d_full_circle = step > 0 && std::abs(d_angles[A - 1] - d_angles[0] + step - two_pi) < 1e-6 * two_pi;
+    }
+    d_spectrum_db.setZero(A, D);
+    d_fit.setZero(A, D);
+}
+
+void jade::check_frames(const Eigen::MatrixXcd& frames) const
+{
+    if (frames.cols() != d_N)
+        throw std::invalid_argument("jade: expected frames of N = " + std::to_string(d_N) +
+                                    " subcarriers, got " + std::to_string(frames.cols()));
+    if (frames.rows() < d_M || frames.rows() % d_M != 0)
+        throw std::invalid_argument("jade: expected a whole number of frames of M = " +
+                                    std::to_string(d_M) + " RX elements, got " +
+                                    std::to_string(frames.rows()) + " rows");
+    const int F = frames.rows() / d_M;
+    for (int f = 0; f < F; f++) {
+        const auto block = frames.middleRows(f * d_M, d_M);
+        if (!block.allFinite())
+            throw std::invalid_argument("jade: frame " + std::to_string(f) +
+                                        " holds NaN or Inf values");
+        if (block.squaredNorm() == 0.0)
+            throw std::invalid_argument("jade: frame " + std::to_string(f) +
+                                        " is all zeros (no signal)");
+    }
+}
+
+Eigen::MatrixXcd jade::smooth(const Eigen::MatrixXcd& frames, int num_rx, int window)
+{
+    const int N = frames.cols();
+    const int F = frames.rows() / num_rx;
+    const int S = N - window + 1;
+    if (window < 1 || S < 1)
+        throw std::invalid_argument("smooth: window must be 1 to N");
+    Eigen::MatrixXcd Y(num_rx * window, F * S);
+    for (int f = 0; f < F; f++)
+        for (int m = 0; m < num_rx; m++)
+            for (int i = 0; i < S; i++)
+                Y.block(m * window, f * S + i, window, 1) =
+                    frames.row(f * num_rx + m).segment(i, window).transpose();
+    return Y;
+}
+
+void jade::compute_subspace(const Eigen::MatrixXcd& frames)
+{
+    const int M = d_M, N = d_N, L = d_L;
+    const int F = frames.rows() / M;
+    const int S = N - L + 1;
+    const int FS = F * S, ML = M * L;
+    Eigen::MatrixXcd V; // eigenvectors, descending eigenvalue order
+    int dim;
+    if (FS <= ML) {
+        // Gram route: G = Yᴴ Y (FS × FS) from X = H_fᴴ H_f' (N × N) by sums along its
+        // diagonals, Y never formed. G(i,j) = Σ_l X(i+l, j+l).
+        Eigen::MatrixXcd G(FS, FS);
+        Eigen::MatrixXcd X(N, N), P(N, N);
+        for (int f = 0; f < F; f++)
+            for (int g = f; g < F; g++) {
+                X.noalias() = frames.middleRows(f * M, M).adjoint() * frames.middleRows(g * M, M);
+                for (int b = 0; b < N; b++)
+                    for (int a = 0; a < N; a++)
+                        P(a, b) = X(a, b) + ((a > 0 && b > 0) ? P(a - 1, b - 1) : cd(0));
+                for (int j = 0; j < S; j++)
+                    for (int i = 0; i < S; i++) {
+                        cd v = P(i + L - 1, j + L - 1);
+                        if (i > 0 && j > 0)
+                            v -= P(i - 1, j - 1);
+                        G(f * S + i, g * S + j) = v;
+                        if (g != f)
+                            G(g * S + j, f * S + i) = std::conj(v);
+                    }
+            }
+        Eigen::SelfAdjointEigenSolver<Eigen::MatrixXcd> eig(G);
+        if (eig.info() != Eigen::Success)
+            throw std::runtime_error("jade: eigendecomposition failed");
+        d_eigenvalues = eig.eigenvalues().reverse().cwiseMax(0.0);
+        V = eig.eigenvectors().rowwise().reverse();
+        dim = FS;
+    } else {
+        const Eigen::MatrixXcd Y = smooth(frames, M, L);
+        Eigen::MatrixXcd R(ML, ML);
+        R.setZero();
+        R.selfadjointView<Eigen::Lower>().rankUpdate(Y);
+        R = R.selfadjointView<Eigen::Lower>();
+        Eigen::SelfAdjointEigenSolver<Eigen::MatrixXcd> eig(R);
+        if (eig.info() != Eigen::Success)
+            throw std::runtime_error("jade: eigendecomposition failed");
+        d_eigenvalues = eig.eigenvalues().reverse().cwiseMax(0.0);
+        V = eig.eigenvectors().rowwise().reverse();
+        dim = ML;
+    }
+
+    // Model order: eigenvalues above threshold × the median eigenvalue (the noise level;
+    // most eigenvalues are noise when paths are few), and above the numerical floor of
+    // noiseless data.
+    const int max_order = std::max(1, std::min(dim / 2, 32));
+    int order;
+    if (d_fixed_order > 0) {
+        order = std::min(d_fixed_order, dim - 1);
+    } else {
+        Eigen::VectorXd sorted = d_eigenvalues;
+        std::nth_element(sorted.data(), sorted.data() + dim / 2, sorted.data() + dim);
+        const double median = sorted(dim / 2);
+        const double level = std::max(d_order_threshold * median, 1e-10 * d_eigenvalues(0));
+        order = 0;
+        while (order < max_order && d_eigenvalues(order) > level)
+            order++;
+    }
+    d_order = order;
+
+    d_Es.resize(ML, order);
+    if (FS <= ML) {
+        // E_s = Y v / sqrt(λ): a correlation of each element's subcarriers with v.
+        for (int k = 0; k < order; k++) {
+            const double scale = 1.0 / std::sqrt(std::max(d_eigenvalues(k), 1e-300));
+            for (int m = 0; m < M; m++)
+                for (int l = 0; l < L; l++) {
+                    cd acc(0);
+                    for (int f = 0; f < F; f++)
+                        acc += (frames.row(f * M + m).segment(l, S).transpose().array() *
+                                V.col(k).segment(f * S, S).array())
+                                   .sum();
+                    d_Es(m * L + l, k) = acc * scale;
+                }
+        }
+        // guard the orthonormality the SVD identity promises against round-off
+        if (order > 0) {
+            Eigen::HouseholderQR<Eigen::MatrixXcd> qr(d_Es);
+            d_Es = qr.householderQ() * Eigen::MatrixXcd::Identity(ML, order);
+        }
+    } else {
+        d_Es = V.leftCols(order);
+    }
+}
+
+void jade::compute_spectrum()
+{
+    const int A = d_angles.size(), D = d_delays.size();
+    const int order = d_order;
+    if (order == 0) {
+        d_fit.setZero(A, D);
+        d_spectrum_db.setZero(A, D);
+        return;
+    }
+    d_Esf = d_Es.cast<cf>();
+    d_Dall.resize(d_M, D * order);
+    for (int k = 0; k < order; k++) {
+        Eigen::Map<const RowMajorCf> B(d_Esf.col(k).data(), d_M, d_L);
+        d_Dall.middleCols(k * D, D).noalias() = B * d_Gc;
+    }
+    d_Z.resize(A, D * order);
+    d_Z.noalias() = d_Ah * d_Dall;
+    d_fit = d_Z.leftCols(D).cwiseAbs2();
+    for (int k = 1; k < order; k++)
+        d_fit += d_Z.middleCols(k * D, D).cwiseAbs2();
+    d_fit /= float(d_M * d_L);
+    d_spectrum_db = (-10.0f * (1.0f - d_fit.array()).max(float(min_residual)).log10()).matrix();
+}
+
+std::vector<std::pair<int, int>> jade::grid_peaks(int wanted) const
+{
+    const int A = d_fit.rows(), D = d_fit.cols();
+    std::vector<std::pair<float, std::pair<int, int>>> cand;
+    for (int a = 0; a < A; a++)
+        for (int d = 0; d < D; d++) {
+            const float v = d_fit(a, d);
+            bool peak = true;
+            for (int da = -1; da <= 1 && peak; da++)
+                for (int dd = -1; dd <= 1; dd++) {
+                    if (da == 0 && dd == 0)
+                        continue;
+                    int aa = a + da;
+                    const int nd = d + dd;
+                    if (nd < 0 || nd >= D)
+                        continue;
+                    if (aa < 0 || aa >= A) {
+                        if (!d_full_circle)
+                            continue;
+                        aa = (aa + A) % A;
+                    }
+                    const float w = d_fit(aa, nd);
+                    // ties go to the first in scan order, so a plateau yields one peak
+                    if (w > v || (w == v && (aa < a || (aa == a && nd < d)))) {
+                        peak = false;
+                        break;
+                    }
+                }
+            if (peak)
+                cand.push_back({ v, { a, d } });
+        }
+    std::sort(cand.begin(), cand.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
+    if (static_cast<int>(cand.size()) > wanted)
+        cand.resize(wanted);
+    std::vector<std::pair<int, int>> out;
+    for (const auto& c : cand)
+        out.push_back(c.second);
+    return out;
+}
+
+double jade::fit_at(double aoa_rad, double delay_total_s) const
+{
+    const int M = d_M, L = d_L;
+    Eigen::VectorXcd a(M), g(L);
+    for (int m = 0; m < M; m++)
+        a(m) = std::polar(1.0, d_k_rad_m * (d_rx_x(m) * std::cos(aoa_rad) + d_rx_y(m) * std::sin(aoa_rad)));
+    for (int l = 0; l < L; l++)
+        g(l) = std::polar(1.0, -two_pi * l * d_df_hz * delay_total_s);
+    double s = 0;
+    for (int k = 0; k < d_Es.cols(); k++) {
+        Eigen::Map<const Eigen::Matrix<cd, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> B(
+            d_Es.col(k).data(), M, L);
+        const cd z = a.transpose() * (B.conjugate() * g);
+        s += std::norm(z);
+    }
+    return s / (M * L);
+}
+
+double jade::subspace_fit(double aoa_rad, double delay_s) const
+{
+    return fit_at(aoa_rad, delay_s + d_system_delay_s);
+}
+
+// Newton ascent of the projection fit f(θ, τ) with analytic derivatives of the separable
+// manifold; τ is scaled to nanoseconds so both variables are of order one.
+bool jade::refine_peak(double& aoa_rad, double& delay_total_s) const
+{
+    const int M = d_M, L = d_L, K = d_Es.cols();
+    const double ns = 1e-9;
+    std::vector<Eigen::Matrix<cd, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> W(K);
+    for (int k = 0; k < K; k++)
+        W[k] = Eigen::Map<const Eigen::Matrix<cd, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>(
+                   d_Es.col(k).data(), M, L)
+                   .conjugate();
+    Eigen::VectorXd lw(L);
+    for (int l = 0; l < L; l++)
+        lw(l) = -two_pi * l * d_df_hz * ns; // d(phase)/d(τ in ns)
+
+    auto evaluate = [&](double th, double s, Eigen::Vector2d* grad, Eigen::Matrix2d* hess) {
+        Eigen::VectorXcd a(M), a1(M), a2(M), g(L), g1(L), g2(L);
+        const double c = std::cos(th), sn = std::sin(th);
+        for (int m = 0; m < M; m++) {
+            const double q = -d_rx_x(m) * sn + d_rx_y(m) * c;  // d(proj)/dθ
+            const double q1 = -d_rx_x(m) * c - d_rx_y(m) * sn; // d²(proj)/dθ²
+            a(m) = std::polar(1.0, d_k_rad_m * (d_rx_x(m) * c + d_rx_y(m) * sn));
+            const cd jk(0, d_k_rad_m);
+            a1(m) = jk * q * a(m);
+            a2(m) = (jk * q1 + (jk * q) * (jk * q)) * a(m);
+        }
+        for (int l = 0; l < L; l++) {
+            g(l) = std::polar(1.0, lw(l) * s);
+            g1(l) = cd(0, lw(l)) * g(l);
+            g2(l) = -lw(l) * lw(l) * g(l);
+        }
+        double f = 0;
+        Eigen::Vector2d gr = Eigen::Vector2d::Zero();
+        Eigen::Matrix2d h = Eigen::Matrix2d::Zero();
+        for (int k = 0; k < K; k++) {
+            const Eigen::VectorXcd t = W[k] * g;
+            const cd z = a.transpose() * t;
+            f += std::norm(z);
+            if (grad) {
+                const Eigen::VectorXcd t1 = W[k] * g1;
+                const Eigen::VectorXcd t2 = W[k] * g2;
+                const cd zt = a1.transpose() * t, zs = a.transpose() * t1;
+                const cd ztt = a2.transpose() * t, zss = a.transpose() * t2, zts = a1.transpose() * t1;
+                gr(0) += 2 * std::real(std::conj(z) * zt);
+                gr(1) += 2 * std::real(std::conj(z) * zs);
+                h(0, 0) += 2 * std::real(std::norm(zt) + std::conj(z) * ztt);
+                h(1, 1) += 2 * std::real(std::norm(zs) + std::conj(z) * zss);
+                h(0, 1) += 2 * std::real(std::conj(zt) * zs + std::conj(z) * zts);
+            }
+        }
+        const double norm = 1.0 / (M * L);
+        if (grad) {
+            *grad = gr * norm;
+            h(1, 0) = h(0, 1);
+            *hess = h * norm;
+        }
+        return f * norm;
+    };
+
+    // Moves are bounded to a few grid cells: a refined peak that runs away is not this peak.
+    const double th0 = aoa_rad, s0 = delay_total_s / ns;
+    double th = th0, s = s0;
+    const double max_dth = 0.1, max_ds = 2.0 / (d_df_hz * d_L) / ns;
+    Eigen::Vector2d grad;
+    Eigen::Matrix2d hess;
+    double f = evaluate(th, s, &grad, &hess);
+    for (int it = 0; it < 50; it++) {
+        Eigen::Vector2d step;
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> es(hess);
+        if (es.eigenvalues().maxCoeff() < 0) {
+            step = -hess.ldlt().solve(grad);
+        } else {
+            // not concave here: a gradient step scaled by the largest curvature
+            const double curv = std::max(es.eigenvalues().cwiseAbs().maxCoeff(), 1e-12);
+            step = grad / curv;
+        }
+        double t = 1.0;
+        bool accepted = false;
+        Eigen::Vector2d g2;
+        Eigen::Matrix2d h2;
+        for (int ls = 0; ls < 30; ls++) {
+            const double th2 = th + t * step(0), s2 = s + t * step(1);
+            const double f2 = evaluate(th2, s2, &g2, &h2);
+            if (f2 >= f - 1e-15) {
+                th = th2;
+                s = s2;
+                f = f2;
+                grad = g2;
+                hess = h2;
+                accepted = true;
+                break;
+            }
+            t *= 0.5;
+        }
+        if (!accepted || (std::abs(t * step(0)) < 1e-12 && std::abs(t * step(1)) < 1e-9))
+            break;
+        if (std::abs(th - th0) > max_dth || std::abs(s - s0) > max_ds)
+            return false;
+    }
+    aoa_rad = wrap_angle(th);
+    delay_total_s = s * ns;
+    return true;
+}
+
+void jade::fit_amplitudes(const Eigen::MatrixXcd& frames, std::vector<jade_path>& paths) const
+{
+    const int P = paths.size();
+    if (P == 0)
+        return;
+    const int M = d_M, N = d_N, F = frames.rows() / M;
+    Eigen::MatrixXcd U(M * N, P);
+    for (int p = 0; p < P; p++)
+        U.col(p) = space_time_manifold(*d_radar, paths[p].aoa_rad, paths[p].delay_s + d_system_delay_s);
+    const Eigen::MatrixXcd UhU = U.adjoint() * U;
+    const Eigen::LDLT<Eigen::MatrixXcd> ldlt(UhU);
+    Eigen::VectorXd power = Eigen::VectorXd::Zero(P);
+    Eigen::VectorXcd h(M * N);
+    for (int f = 0; f < F; f++) {
+        for (int m = 0; m < M; m++)
+            h.segment(m * N, N) = frames.row(f * M + m).transpose();
+        const Eigen::VectorXcd gamma = ldlt.solve(U.adjoint() * h);
+        power += gamma.cwiseAbs2();
+        if (f == 0)
+            for (int p = 0; p < P; p++)
+                paths[p].amplitude = gamma(p);
+    }
+    for (int p = 0; p < P; p++)
+        paths[p].power = power(p) / F;
+}
+
+std::vector<jade_path> jade::estimate(const std::complex<float>* frames, int num_frames)
+{
+    if (frames == nullptr || num_frames < 1)
+        throw std::invalid_argument("jade: no frames");
+    Eigen::Map<const Eigen::Matrix<cf, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> map(
+        frames, num_frames * d_M, d_N);
+    return estimate_matrix(map.cast<cd>());
+}
+
+std::vector<jade_path> jade::estimate_matrix(const Eigen::MatrixXcd& frames)
+{
+    check_frames(frames);
+    compute_subspace(frames);
+    compute_spectrum();
+    std::vector<jade_path> paths;
+    const int wanted = std::min(d_order, d_max_paths);
+    if (wanted == 0)
+        return paths;
+    // A few spare grid peaks: refinement may merge two cells of one peak.
+    const auto peaks = grid_peaks(wanted + 4);
+    const double merge_angle = 1e-3, merge_delay = 1e-12;
+    for (const auto& pk : peaks) {
+        double th = d_angles[pk.first];
+        double tau = d_delays[pk.second] + d_system_delay_s;
+        if (d_refine && !refine_peak(th, tau)) {
+            th = d_angles[pk.first];
+            tau = d_delays[pk.second] + d_system_delay_s;
+        }
+        th = wrap_angle(th);
+        bool duplicate = false;
+        for (const auto& q : paths) {
+            double dth = std::abs(q.aoa_rad - th);
+            dth = std::min(dth, two_pi - dth);
+            if (dth < merge_angle && std::abs(q.delay_s + d_system_delay_s - tau) < merge_delay)
+                duplicate = true;
+        }
+        if (duplicate)
+            continue;
+        jade_path p;
+        p.aoa_rad = th;
+        p.delay_s = tau - d_system_delay_s;
+        p.spectrum_db = -10.0 * std::log10(std::max(1.0 - fit_at(th, tau), min_residual));
+        paths.push_back(p);
+    }
+    // keep the strongest peaks of the pseudo-spectrum, then order by fitted power
+    std::sort(paths.begin(), paths.end(), [](const jade_path& x, const jade_path& y) {
+        return x.spectrum_db > y.spectrum_db;
+    });
+    if (static_cast<int>(paths.size()) > wanted)
+        paths.resize(wanted);
+    fit_amplitudes(frames, paths);
+    std::sort(paths.begin(), paths.end(), [](const jade_path& x, const jade_path& y) {
+        return x.power > y.power;
+    });
+    return paths;
+}
+
+} // namespace thrumapper
+} // namespace gr

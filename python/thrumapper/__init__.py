@@ -1,0 +1,14 @@
+#
+# SPDX-License-Identifier: GPL-3.0-or-later
+#
+"""gr-thrumapper: through-wall building mapping with a bistatic OFDM array radar.
+
+The C++ core (radar description, manifolds, JADE) and blocks come from the pybind11
+extension; the Python modules add the survey I/O, the simulated building and the tools.
+"""
+
+# import pybind11 generated symbols into the thrumapper namespace
+try:
+    from .thrumapper_python import *  # noqa: F401,F403
+except ModuleNotFoundError:
+    pass
