@@ -12,3 +12,4 @@ try:
     from .thrumapper_python import *  # noqa: F401,F403
 except ModuleNotFoundError:
     pass
+from . import scene, building_sim, evaluation

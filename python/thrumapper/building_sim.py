@@ -148,6 +148,7 @@ class BuildingGeometry:
     half_thickness_m: np.ndarray  # (P,)
     wall_index: np.ndarray  # (P,) index into scene.walls
     material_index: np.ndarray  # (P,) index into materials
+    door: np.ndarray  # (P,) bool: the piece is a closed door's leaf
     materials: list
     face_extent_m: np.ndarray  # (P, 2, 2)
     junction: np.ndarray  # (P, 2) bool: the piece's start / end abuts another wall
@@ -187,28 +188,34 @@ def building_geometry(scene):
 
 def _build_geometry(scene):
     materials, material_ids = [], {}
-    starts, ends, wall_of, material_of = [], [], [], []
+
+    def material_id(material):
+        if id(material) not in material_ids:
+            material_ids[id(material)] = len(materials)
+            materials.append(material)
+        return material_ids[id(material)]
+
+    starts, ends, wall_of, material_of, is_door = [], [], [], [], []
     for wall in scene.walls:
-        key = id(wall.material)
-        if key not in material_ids:
-            material_ids[key] = len(materials)
-            materials.append(wall.material)
         length = wall.length_m
         direction = (wall.end_m - wall.start_m) / length
-        gaps = sorted((d.position_m - d.width_m / 2, d.position_m + d.width_m / 2)
-                      for d in scene.doors if d.wall_index == wall.index)
+        doors = sorted((d for d in scene.doors if d.wall_index == wall.index), key=lambda d: d.position_m)
         cursor = 0.0
-        solid = []
-        for gap_start, gap_end in gaps:
-            solid.append((cursor, gap_start))
+        solid = []  # (start, end, material, door?) along the wall
+        for door in doors:
+            gap_start, gap_end = door.position_m - door.width_m / 2, door.position_m + door.width_m / 2
+            solid.append((cursor, gap_start, wall.material, False))
+            if door.material is not None:  # a closed door: a leaf of its own material in the gap
+                solid.append((gap_start, gap_end, door.material, True))
             cursor = gap_end
-        solid.append((cursor, length))
-        for a, b in solid:
+        solid.append((cursor, length, wall.material, False))
+        for a, b, material, door_leaf in solid:
             if b - a > 1e-3:  # a door flush with a wall end leaves no piece
                 starts.append(wall.start_m + a * direction)
                 ends.append(wall.start_m + b * direction)
                 wall_of.append(wall.index)
-                material_of.append(material_ids[key])
+                material_of.append(material_id(material))
+                is_door.append(door_leaf)
     count = len(starts)
     start = np.array(starts, dtype=float).reshape(count, 2)
     end = np.array(ends, dtype=float).reshape(count, 2)
@@ -219,6 +226,7 @@ def _build_geometry(scene):
     half = np.array([materials[i].thickness_m / 2 for i in material_of], dtype=float)
     wall_index = np.array(wall_of, dtype=int)
     material_index = np.array(material_of, dtype=int)
+    door = np.array(is_door, dtype=bool)
 
     extent = np.zeros((count, 2, 2))
     extent[:, :, 1] = length[:, None]
@@ -261,7 +269,7 @@ def _build_geometry(scene):
 
     geom = BuildingGeometry(
         start_m=start, end_m=end, direction=direction, normal=normal, length_m=length, half_thickness_m=half,
-        wall_index=wall_index, material_index=material_index, materials=materials, face_extent_m=extent,
+        wall_index=wall_index, material_index=material_index, door=door, materials=materials, face_extent_m=extent,
         junction=junction, corners=corners,
         scatter_position_m=np.zeros((0, 2)), scatter_normal=np.zeros((0, 2)),
         scatter_amplitude_m=np.zeros(0, dtype=complex), scatter_piece=np.zeros(0, dtype=int),
@@ -1123,8 +1131,9 @@ def truth_geojson(scene):
                         "walls_between": int(level),
                         "wall": int(wall.index),
                         "name": wall.name,
-                        "material": wall.material.name,
-                        "thickness_m": float(wall.thickness_m),
+                        "door": bool(geom.door[p]),
+                        "material": geom.materials[geom.material_index[p]].name,
+                        "thickness_m": float(2.0 * geom.half_thickness_m[p]),
                     },
                 })
     if geom.corners:

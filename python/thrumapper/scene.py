@@ -118,6 +118,7 @@ class Door:
     wall_index: int
     position_m: float  # door centre, metres along the wall from its segment's first point
     width_m: float
+    material: Material = None  # None: an open gap; else a closed door leaf of this material
 
 
 @dataclass(eq=False)
@@ -391,6 +392,15 @@ def _read_materials(section):
 _WALL_KEYS = {"name", "segment", "material", "thickness_m"}
 
 
+def _material_ref(value, materials, where, inline_name):
+    """A material by preset/scene name, or an inline material mapping."""
+    if isinstance(value, str):
+        if value not in materials:
+            _fail(where, f"unknown material '{value}'; known: {', '.join(sorted(materials))}")
+        return materials[value]
+    return _read_material(inline_name, value, where)
+
+
 def _read_walls(section, materials):
     if section is None:
         return []
@@ -412,13 +422,8 @@ def _read_walls(section, materials):
         if name in names:
             _fail(f"{where}.name", f"duplicate wall name '{name}'")
         names.add(name)
-        material_spec = spec.get("material", "plasterboard")
-        if isinstance(material_spec, str):
-            if material_spec not in materials:
-                _fail(f"{where}.material", f"unknown material '{material_spec}'; known: {', '.join(sorted(materials))}")
-            material = materials[material_spec]
-        else:
-            material = _read_material(f"{name}_material", material_spec, f"{where}.material")
+        material = _material_ref(spec.get("material", "plasterboard"), materials, f"{where}.material",
+                                 f"{name}_material")
         if spec.get("thickness_m") is not None:
             thickness = _number(spec["thickness_m"], f"{where}.thickness_m", lo=0.0, lo_open=True)
             try:
@@ -441,7 +446,7 @@ def _wall_ref(value, walls, where):
     return index
 
 
-def _read_doors(section, walls):
+def _read_doors(section, walls, materials):
     if section is None:
         return []
     if not isinstance(section, list):
@@ -449,7 +454,7 @@ def _read_doors(section, walls):
     doors = []
     for i, spec in enumerate(section):
         where = f"doors[{i}]"
-        spec = _mapping(spec, where, {"wall", "position_m", "width_m"})
+        spec = _mapping(spec, where, {"wall", "position_m", "width_m", "material"})
         for key in ("wall", "position_m", "width_m"):
             if key not in spec:
                 _fail(f"{where}.{key}", "missing")
@@ -460,7 +465,10 @@ def _read_doors(section, walls):
         if position - width / 2 < -1e-9 or position + width / 2 > length + 1e-9:
             _fail(f"{where}.position_m", f"the door [{position - width / 2:g}, {position + width / 2:g}] m "
                   f"does not fit on wall '{walls[wall_index].name}' of length {length:g} m")
-        doors.append(Door(wall_index, float(position), float(width)))
+        material = None
+        if spec.get("material") is not None:
+            material = _material_ref(spec["material"], materials, f"{where}.material", f"door{i}_material")
+        doors.append(Door(wall_index, float(position), float(width), material))
     # Overlapping doors on one wall are almost certainly a typo.
     for a in range(len(doors)):
         for b in range(a + 1, len(doors)):
@@ -789,7 +797,7 @@ def load_scene(path_or_dict, *, seed=None):
     radar = _read_radar(data.get("radar"))
     materials = _read_materials(data.get("materials"))
     walls = _read_walls(data.get("walls"), materials)
-    doors = _read_doors(data.get("doors"), walls)
+    doors = _read_doors(data.get("doors"), walls, materials)
     clutter_names, clutter_xy, clutter_amp = _read_clutter(data.get("clutter"), rng_for(scene_seed, RNG_CLUTTER))
     if "trajectory" not in data:
         _fail("trajectory", "missing: give waypoints + step_m, or poses")
@@ -848,11 +856,14 @@ def _check_clearance(scene):
 def describe(scene):
     """A few lines that summarise a scene (for the CLI)."""
     r = scene.radar
+    offsets = r.subcarrier_offsets_hz
+    spacing_hz = float(np.median(np.diff(offsets))) if offsets.size > 1 else 0.0
     lines = [
         f"scene '{scene.name}': {len(scene.walls)} walls, {len(scene.doors)} doors, "
         f"{len(scene.clutter_names)} clutter points, {scene.num_poses} poses x {scene.frames_per_pose} frames",
         f"radar: K={r.num_tx} TX, M={r.num_rx} RX, N={r.num_subcarriers} subcarriers at "
-        f"{r.carrier_hz / 1e9:.4g} GHz over {(r.subcarrier_offsets_hz[-1] - r.subcarrier_offsets_hz[0]) / 1e6:.4g} MHz, "
+        f"{r.carrier_hz / 1e9:.4g} GHz, spacing {spacing_hz / 1e3:.4g} kHz (N x spacing = "
+        f"{offsets.size * spacing_hz / 1e6:.4g} MHz), "
         f"array centres {np.round(r.tx_centre_m, 3).tolist()} / {np.round(r.rx_centre_m, 3).tolist()} m",
         f"tx weights: {scene.tx_weights['mode']}; seed {scene.seed}",
     ]

@@ -16,7 +16,7 @@ import numpy as np
 import pmt
 from gnuradio import gr
 
-try:
+if __package__:
     from .survey import (
         FILE_DTYPE,
         FRAME_TYPES,
@@ -28,7 +28,7 @@ try:
         rx_time_to_datetime,
         write_meta,
     )
-except ImportError:  # run as a plain file, before the package is installed
+else:  # imported as a plain file, before the package is built
     from survey import (
         FILE_DTYPE,
         FRAME_TYPES,
@@ -53,6 +53,8 @@ KEY_X = pmt.intern("x")
 KEY_Y = pmt.intern("y")
 KEY_HEADING = pmt.intern("heading")
 POSE_PORT = pmt.intern("pose")
+# gr.WORK_DONE is an enum in Python; the gateway compares work()'s result with ints.
+_WORK_DONE = int(gr.WORK_DONE)
 
 
 def pose_message(frame_index, pose):
@@ -162,7 +164,7 @@ class survey_source(gr.sync_block):
         total = self._frames.size
         if self._position >= total:
             if not self._repeat:
-                return gr.WORK_DONE
+                return _WORK_DONE
             self._position = 0
         count = min(len(out), total - self._position)
         frames = self._frames[self._position : self._position + count]
@@ -379,4 +381,6 @@ class survey_sink(gr.sync_block):
                 data = np.ascontiguousarray(kept, dtype=FILE_DTYPE)
                 self._hasher.update(memoryview(data).cast("B"))
                 self._handle.write(memoryview(data).cast("B"))
+                # On disk now: a crash loses the metadata, not the frames already seen.
+                self._handle.flush()
         return count

@@ -1,0 +1,98 @@
+#
+# SPDX-License-Identifier: GPL-3.0-or-later
+#
+"""thrumapper-jade: joint angle-delay estimation on every pose of a CSI survey."""
+
+import argparse
+import json
+import sys
+
+from .jade_pipeline import JadeSettings, plot_surface, run_survey
+from .survey import SurveyFormatError, read_survey
+
+EPILOG = """\
+output:
+  one JSON object per line for each group of frames that share a pose (rx_reference frames
+  are left out), strongest path first:
+    {"frames": [0, 1, 2, 3], "pose": [x, y, heading],
+     "paths": [{"aoa_deg": 243.4, "delay_s": 5.22e-09, "power": 0.0013}, ...]}
+  aoa_deg: angle of arrival at the RX array centre, degrees in [0, 360), counter-clockwise
+  from the robot's +x axis (its direction of travel). delay_s: propagation delay from the TX
+  array centre to the RX array centre, the system delay removed (FORMATS.md). power: |gain|^2
+  of the path in CSI units, averaged over the group's frames.
+
+system delay:
+  taken from --system-delay-s, else from the survey's thrumapper:system_delay_s, else
+  measured on the direct TX->RX path, whose geometry is known (delays are then defined
+  modulo 1/subcarrier spacing, about 1.07 us at 120 MHz / 128).
+
+examples:
+  thrumapper-sim examples/scenes/paper_4_2_wall_0p7m.yaml --out out/
+  thrumapper-jade out/paper_4_2_wall_0p7m.sigmf-meta --paths 3 --png out/surface.png
+  thrumapper-jade survey.sigmf-meta --max-delay-s 80e-9 | jq '.paths[0].delay_s'
+"""
+
+
+def build_parser():
+    p = argparse.ArgumentParser(
+        prog="thrumapper-jade",
+        description="Find the echoes (angle of arrival and delay) in every pose of a CSI "
+                    "survey (SigMF, thrumapper:kind \"csi\") with JADE, the joint "
+                    "angle-delay MUSIC estimator, and print them as JSON lines.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("survey", help="the survey: NAME.sigmf-meta (or NAME, or NAME.sigmf-data)")
+    p.add_argument("--paths", type=int, default=4, metavar="K",
+                   help="most paths reported per pose (default 4); fewer when the eigenvalues "
+                        "show fewer")
+    p.add_argument("--png", metavar="SURFACE.png",
+                   help="write the angle x delay surface of one pose group as a PNG")
+    p.add_argument("--png-group", type=int, default=0, metavar="I",
+                   help="which pose group the PNG shows (default 0, the first)")
+    p.add_argument("--system-delay-s", type=float, metavar="S",
+                   help="the system delay to remove, overriding the survey's")
+    p.add_argument("--max-delay-s", type=float, default=60e-9, metavar="S",
+                   help="delay grid end (default 60e-9: walls up to about 9 m)")
+    p.add_argument("--angles", type=int, default=360, help="angle grid size over 360 deg (default 360)")
+    p.add_argument("--delays", type=int, default=240, help="delay grid size (default 240)")
+    p.add_argument("--smoothing-window", type=int, default=0, metavar="L",
+                   help="subcarriers per smoothing window (default 0: N/3)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    try:
+        survey = read_survey(args.survey)
+    except (SurveyFormatError, OSError) as e:
+        print(f"thrumapper-jade: {e}", file=sys.stderr)
+        return 2
+    settings = JadeSettings(num_angles=args.angles, num_delays=args.delays,
+                            delay_max_s=args.max_delay_s, max_paths=args.paths,
+                            smoothing_window=args.smoothing_window)
+    progress = None
+    if not args.quiet and sys.stderr.isatty():
+        from tqdm import tqdm
+
+        def progress(groups):
+            return tqdm(groups, desc="poses", unit="pose", file=sys.stderr)
+    png_written = False
+    try:
+        for i, result in enumerate(run_survey(survey, settings, args.system_delay_s, progress)):
+            line = {k: result[k] for k in ("frames", "pose", "paths")}
+            print(json.dumps(line), flush=True)
+            if args.png and i == args.png_group:
+                plot_surface(result, args.png)
+                png_written = True
+    except ValueError as e:
+        print(f"thrumapper-jade: {e}", file=sys.stderr)
+        return 2
+    if args.png and not png_written:
+        print(f"thrumapper-jade: --png-group {args.png_group}: the survey has fewer pose groups",
+              file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,204 @@
+#!/usr/bin/env python3
+#
+# SPDX-License-Identifier: GPL-3.0-or-later
+#
+"""Tests of map scoring against hand-computed distances, lengths and counts."""
+
+import contextlib
+import copy
+import importlib.util
+import io
+import json
+import math
+import os
+import sys
+import tempfile
+
+import numpy as np
+from gnuradio import gr_unittest
+
+try:
+    from gnuradio.thrumapper import cli_eval, evaluation
+except ImportError:
+    # Not installed (or the C++ extension is not built): import the sibling files as a package.
+    _here = os.path.dirname(os.path.abspath(__file__))
+    _spec = importlib.util.spec_from_file_location("thrumapper_local", os.path.join(_here, "__init__.py"),
+                                                   submodule_search_locations=[_here])
+    _package = importlib.util.module_from_spec(_spec)
+    sys.modules["thrumapper_local"] = _package
+    _spec.loader.exec_module(_package)
+    from thrumapper_local import cli_eval, evaluation
+
+
+def _feature(geometry_type, coordinates, **properties):
+    return {"type": "Feature", "geometry": {"type": geometry_type, "coordinates": coordinates},
+            "properties": properties}
+
+
+def _collection(features):
+    return {"type": "FeatureCollection", "thrumapper:crs": "local-metres", "features": features}
+
+
+def _truth():
+    """A 10 m line-of-sight face at y = -1 and a hidden one at y = -3; two corners; 10 poses."""
+    return _collection([
+        _feature("LineString", [[0, -1], [10, -1]], kind="wall", **{"class": "line_of_sight"}, confidence=1.0),
+        _feature("LineString", [[0, -3], [10, -3]], kind="wall", **{"class": "hidden"}, confidence=1.0),
+        _feature("Point", [10, -1], kind="corner", confidence=1.0),
+        _feature("Point", [10, -3], kind="corner", confidence=1.0),
+        _feature("LineString", [[float(x), 0.0] for x in range(10)], kind="trajectory"),
+    ])
+
+
+def _map():
+    los_points = [[x + 0.5, -1.1] for x in range(10)]  # 0.1 m off the LoS face
+    hidden_points = [[x + 0.5, -3.2 if x % 2 else -2.8] for x in range(10)]  # 0.2 m off, both sides
+    return _collection([
+        _feature("MultiPoint", los_points, kind="detections", **{"class": "line_of_sight"}),
+        _feature("MultiPoint", hidden_points, kind="detections", **{"class": "hidden"}),
+        # Half the LoS face, 0.1 m off: covers x ∈ [0, 5 + √(0.3² − 0.1²)].
+        _feature("LineString", [[0, -1.1], [5, -1.1]], kind="wall", **{"class": "line_of_sight"}, confidence=0.9),
+        # A wall 2 m from any true one: 3 m of false wall.
+        _feature("LineString", [[0, 1.0], [1.5, 1.0], [3, 1.0]], kind="wall", **{"class": "line_of_sight"},
+                 confidence=0.4),
+        # 0.4 m off the hidden face: too far to cover it (0.3 m), too near to be false (0.5 m).
+        _feature("LineString", [[2, -3.4], [8, -3.4]], kind="wall", **{"class": "hidden"}, confidence=0.5),
+        _feature("Point", [10.3, -1.2], kind="corner", confidence=0.8),  # 0.36 m from a true corner
+        _feature("Point", [5.0, 5.0], kind="corner", confidence=0.3),  # near none
+        _feature("LineString", [[x + 0.05, 0.0] for x in range(10)], kind="trajectory"),
+        _feature("Point", [1.0, 2.0], kind="label", text="ignored: a kind the reader does not know"),
+    ])
+
+
+class qa_evaluation(gr_unittest.TestCase):
+    def test_scores_match_hand_computation(self):
+        scores = evaluation.score_map(_map(), _truth())
+        los, hidden = scores["classes"]["line_of_sight"], scores["classes"]["hidden"]
+        self.assertEqual(los["detections"]["count"], 10)
+        self.assertAlmostEqual(los["detections"]["rms_m"], 0.1, delta=1e-12)
+        self.assertAlmostEqual(los["detections"]["median_m"], 0.1, delta=1e-12)
+        self.assertAlmostEqual(hidden["detections"]["rms_m"], 0.2, delta=1e-12)
+        self.assertAlmostEqual(hidden["detections"]["median_m"], 0.2, delta=1e-12)
+        self.assertAlmostEqual(los["truth_wall_length_m"], 10.0, delta=1e-9)
+        covered = 5.0 + math.sqrt(0.3**2 - 0.1**2)
+        self.assertAlmostEqual(los["covered_length_m"], covered, delta=0.011)  # 1 cm sampling
+        self.assertAlmostEqual(los["coverage"], covered / 10.0, delta=0.0011)
+        self.assertEqual(hidden["covered_length_m"], 0.0)
+        self.assertAlmostEqual(los["map_wall_length_m"], 8.0, delta=1e-9)
+        self.assertAlmostEqual(los["false_wall_length_m"], 3.0, delta=1e-9)
+        self.assertEqual(hidden["false_wall_length_m"], 0.0)
+        self.assertAlmostEqual(scores["false_wall_length_m"], 3.0, delta=1e-9)
+        self.assertEqual(scores["corners"]["truth"], 2)
+        self.assertEqual(scores["corners"]["found"], 1)
+        self.assertEqual(scores["corners"]["unmatched_map"], 1)
+        self.assertAlmostEqual(scores["corners"]["fraction"], 0.5)
+        self.assertTrue(scores["trajectory"]["pointwise"])
+        self.assertAlmostEqual(scores["trajectory"]["rms_m"], 0.05, delta=1e-12)
+        json.dumps(scores, allow_nan=False)  # plain JSON, no NaN
+
+    def test_false_wall_partly_near_truth(self):
+        # A map wall from y = -1 straight away from the face: its first 0.5 m is near the truth.
+        truth = _truth()
+        map_data = _collection([_feature("LineString", [[5, -1], [5, 1]], kind="wall",
+                                         **{"class": "line_of_sight"}, confidence=1.0)])
+        scores = evaluation.score_map(map_data, truth)
+        self.assertAlmostEqual(scores["classes"]["line_of_sight"]["false_wall_length_m"], 1.5, delta=0.011)
+        # It crosses the LoS face at one point: it covers ±0.3 m of it.
+        self.assertAlmostEqual(scores["classes"]["line_of_sight"]["covered_length_m"], 0.6, delta=0.021)
+
+    def test_trajectory_of_other_length(self):
+        map_data = _collection([_feature("LineString", [[0.5, 0.2], [4.5, 0.2], [8.5, 0.2]], kind="trajectory")])
+        scores = evaluation.score_map(map_data, _truth())
+        self.assertFalse(scores["trajectory"]["pointwise"])
+        self.assertAlmostEqual(scores["trajectory"]["rms_m"], 0.2, delta=1e-12)
+
+    def test_empty_map(self):
+        scores = evaluation.score_map(_collection([]), _truth())
+        los = scores["classes"]["line_of_sight"]
+        self.assertEqual(los["detections"]["count"], 0)
+        self.assertIsNone(los["detections"]["rms_m"])
+        self.assertEqual(los["coverage"], 0.0)
+        self.assertIsNone(scores["trajectory"])
+        self.assertIn("trajectory", evaluation.format_table(scores))
+
+    def test_malformed_geojson_names_the_problem(self):
+        def broken(change):
+            data = copy.deepcopy(_map())
+            change(data)
+            return data
+
+        cases = [
+            (lambda d: d.pop("thrumapper:crs"), "thrumapper:crs"),
+            (lambda d: d.update({"type": "Feature"}), "type"),
+            (lambda d: d.update({"features": {}}), "features"),
+            (lambda d: d["features"][2]["properties"].pop("class"), "features[2] (kind 'wall').properties.class"),
+            (lambda d: d["features"][2]["properties"].update({"class": "LoS"}), "properties.class"),
+            (lambda d: d["features"][2]["properties"].update({"confidence": 1.5}), "properties.confidence"),
+            (lambda d: d["features"][2]["geometry"].update({"coordinates": [[0, 1]]}),
+             "features[2] (kind 'wall').geometry.coordinates"),
+            (lambda d: d["features"][3]["geometry"]["coordinates"][1].__setitem__(0, "x"),
+             "features[3] (kind 'wall').geometry.coordinates[1]"),
+            (lambda d: d["features"][0]["geometry"].update({"type": "LineString"}), "features[0] (kind 'detections')"
+             ".geometry.type"),
+            (lambda d: d["features"][5].pop("geometry"), "features[5] (kind 'corner').geometry"),
+            (lambda d: d["features"].append(copy.deepcopy(d["features"][7])), "second trajectory"),
+        ]
+        for change, expected in cases:
+            with self.assertRaises(evaluation.MapFormatError) as ctx:
+                evaluation.load_map(broken(change), "map.geojson")
+            self.assertIn(expected, str(ctx.exception))
+            self.assertTrue(str(ctx.exception).startswith("map.geojson"))
+
+    def test_cli_table_json_and_errors(self):
+        with tempfile.TemporaryDirectory() as tmp:
+            map_path, truth_path, bad_path = (os.path.join(tmp, n) for n in ("m.geojson", "t.geojson", "b.geojson"))
+            for path, data in ((map_path, _map()), (truth_path, _truth())):
+                with open(path, "w") as handle:
+                    json.dump(data, handle)
+            with open(bad_path, "w") as handle:
+                handle.write("{not json")
+            out = io.StringIO()
+            with contextlib.redirect_stdout(out):
+                self.assertEqual(cli_eval.main([map_path, truth_path, "--json"]), 0)
+            scores = json.loads(out.getvalue())
+            self.assertAlmostEqual(scores["classes"]["line_of_sight"]["detections"]["rms_m"], 0.1, delta=1e-12)
+            out = io.StringIO()
+            with contextlib.redirect_stdout(out):
+                self.assertEqual(cli_eval.main([map_path, truth_path]), 0)
+            self.assertIn("coverage", out.getvalue())
+            self.assertIn("corners found within 0.5 m: 1 of 2", out.getvalue())
+            err = io.StringIO()
+            with contextlib.redirect_stderr(err):
+                self.assertEqual(cli_eval.main([bad_path, truth_path]), 2)
+                self.assertEqual(cli_eval.main([os.path.join(tmp, "none.geojson"), truth_path]), 2)
+            self.assertIn("not valid JSON", err.getvalue())
+            self.assertIn("no such file", err.getvalue())
+
+    def test_truth_scores_perfectly_against_itself(self):
+        try:
+            from gnuradio.thrumapper import building_sim, scene
+        except ImportError:
+            from thrumapper_local import building_sim, scene
+        path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "examples", "scenes",
+                            "paper_4_4_corridor_corner.yaml")
+        truth = building_sim.truth_geojson(scene.load_scene(path))
+        # Detections exactly on the faces: zero error.
+        points = {c: [] for c in evaluation.CLASSES}
+        for feature in truth["features"]:
+            if feature["properties"]["kind"] == "wall":
+                a, b = np.array(feature["geometry"]["coordinates"])
+                points[feature["properties"]["class"]].append(((a + b) / 2).tolist())
+        as_map = copy.deepcopy(truth)
+        for cls, pts in points.items():
+            as_map["features"].append(_feature("MultiPoint", pts, kind="detections", **{"class": cls}))
+        scores = evaluation.score_map(as_map, truth)
+        for cls in evaluation.CLASSES:
+            self.assertAlmostEqual(scores["classes"][cls]["detections"]["rms_m"], 0.0, delta=1e-12)
+            self.assertAlmostEqual(scores["classes"][cls]["coverage"], 1.0, delta=1e-9)
+            self.assertEqual(scores["classes"][cls]["false_wall_length_m"], 0.0)
+        self.assertEqual(scores["corners"]["found"], scores["corners"]["truth"])
+        self.assertAlmostEqual(scores["trajectory"]["rms_m"], 0.0)
+
+
+if __name__ == "__main__":
+    gr_unittest.run(qa_evaluation)
