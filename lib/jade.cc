@@ -6,6 +6,7 @@
 #include <gnuradio/thrumapper/manifold.h>
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <limits>
 #include <cmath>
 #include <stdexcept>
 #include <string>
@@ -36,6 +37,142 @@ void check_grid(const std::vector<double>& g, const char* name)
         if (!std::isfinite(v))
             throw std::invalid_argument(std::string(name) + ": grid values must be finite");
 }
+
+// The few leading eigenpairs of a Hermitian matrix, without the full eigendecomposition:
+// Householder tridiagonalisation (Q kept implicit), eigenvalues by Sturm bisection on the
+// real tridiagonal T, eigenvectors by inverse iteration on T and one back-transformation.
+// The full QL eigensolver costs about four times as much at the sizes JADE meets (~86).
+class leading_eigen
+{
+public:
+    explicit leading_eigen(const Eigen::MatrixXcd& A) : d_tri(A)
+    {
+        d_n = A.rows();
+        d_d = d_tri.diagonal();
+        d_e = d_tri.subDiagonal();
+        d_lo = d_hi = d_d(0);
+        for (int i = 0; i < d_n; i++) {
+            const double r = (i > 0 ? std::abs(d_e(i - 1)) : 0.0) + (i < d_n - 1 ? std::abs(d_e(i)) : 0.0);
+            d_lo = std::min(d_lo, d_d(i) - r);
+            d_hi = std::max(d_hi, d_d(i) + r);
+        }
+        d_norm = std::max(std::abs(d_lo), std::abs(d_hi));
+    }
+
+    int size() const { return d_n; }
+
+    //! The k-th smallest eigenvalue (k = 0 the smallest).
+    double kth_smallest(int k) const
+    {
+        double lo = d_lo, hi = d_hi;
+        const double tol = 4 * std::numeric_limits<double>::epsilon() * d_norm + 1e-300;
+        for (int it = 0; it < 200 && hi - lo > tol; it++) {
+            const double mid = 0.5 * (lo + hi);
+            if (count_below(mid) > k)
+                hi = mid;
+            else
+                lo = mid;
+        }
+        return 0.5 * (lo + hi);
+    }
+
+    //! The k-th largest eigenvalue (k = 0 the largest).
+    double kth_largest(int k) const { return kth_smallest(d_n - 1 - k); }
+
+    //! Unit eigenvectors for the given eigenvalues (descending), as columns.
+    Eigen::MatrixXcd vectors(const std::vector<double>& values) const
+    {
+        const int n = d_n, K = values.size();
+        Eigen::MatrixXd X(n, K);
+        for (int k = 0; k < K; k++) {
+            // shift just off the eigenvalue so that T - μ stays (barely) invertible
+            const double mu = values[k] + 8 * std::numeric_limits<double>::epsilon() * d_norm;
+            Eigen::VectorXd x(n);
+            for (int i = 0; i < n; i++)
+                x(i) = 1.0 + 0.01 * ((i * 7919) % 101); // fixed, not orthogonal to anything
+            for (int it = 0; it < 4; it++) {
+                solve_shifted(mu, x);
+                // keep clustered eigenvalues' vectors apart
+                for (int j = 0; j < k; j++)
+                    x -= X.col(j).dot(x) * X.col(j);
+                x.normalize();
+            }
+            X.col(k) = x;
+        }
+        Eigen::MatrixXcd V = X.cast<cd>();
+        V.applyOnTheLeft(d_tri.matrixQ());
+        return V;
+    }
+
+private:
+    int count_below(double x) const
+    {
+        const double tiny = std::numeric_limits<double>::min();
+        double q = d_d(0) - x;
+        int c = q < 0;
+        for (int i = 1; i < d_n; i++) {
+            q = d_d(i) - x - d_e(i - 1) * d_e(i - 1) / (q == 0 ? tiny : q);
+            c += q < 0;
+        }
+        return c;
+    }
+
+    // Solve (T - μI) x = b in place: tridiagonal LU with partial pivoting (LAPACK dgttrf /
+    // dgtts2); a zero pivot is nudged, as inverse iteration wants.
+    void solve_shifted(double mu, Eigen::VectorXd& b) const
+    {
+        const int n = d_n;
+        if (n == 1) {
+            b(0) /= (d_d(0) - mu == 0 ? 1e-300 : d_d(0) - mu);
+            return;
+        }
+        std::vector<double> dl(d_e.data(), d_e.data() + n - 1), du(dl), du2(std::max(n - 2, 0), 0.0), d(n);
+        std::vector<int> ipiv(n - 1);
+        for (int i = 0; i < n; i++)
+            d[i] = d_d(i) - mu;
+        for (int i = 0; i < n - 1; i++) {
+            if (std::abs(d[i]) >= std::abs(dl[i])) {
+                ipiv[i] = i;
+                if (d[i] != 0) {
+                    const double fact = dl[i] / d[i];
+                    dl[i] = fact;
+                    d[i + 1] -= fact * du[i];
+                }
+            } else {
+                ipiv[i] = i + 1;
+                const double fact = d[i] / dl[i];
+                d[i] = dl[i];
+                dl[i] = fact;
+                const double temp = du[i];
+                du[i] = d[i + 1];
+                d[i + 1] = temp - fact * d[i + 1];
+                if (i < n - 2) {
+                    du2[i] = du[i + 1];
+                    du[i + 1] = -fact * du[i + 1];
+                }
+            }
+        }
+        const double nudge = std::numeric_limits<double>::epsilon() * d_norm + 1e-300;
+        for (int i = 0; i < n; i++)
+            if (std::abs(d[i]) < nudge)
+                d[i] = d[i] < 0 ? -nudge : nudge;
+        for (int i = 0; i < n - 1; i++) {
+            const int ip = ipiv[i];
+            const double temp = b(2 * i + 1 - ip) - dl[i] * b(ip);
+            b(i) = b(ip);
+            b(i + 1) = temp;
+        }
+        b(n - 1) /= d[n - 1];
+        b(n - 2) = (b(n - 2) - du[n - 2] * b(n - 1)) / d[n - 2];
+        for (int i = n - 3; i >= 0; i--)
+            b(i) = (b(i) - du[i] * b(i + 1) - du2[i] * b(i + 2)) / d[i];
+    }
+
+    Eigen::Tridiagonalization<Eigen::MatrixXcd> d_tri;
+    int d_n;
+    Eigen::VectorXd d_d, d_e;
+    double d_lo, d_hi, d_norm;
+};
 } // namespace
 
 jade::jade(radar_description::sptr radar,
@@ -225,13 +362,16 @@ void jade::compute_subspace(const Eigen::MatrixXcd& frames)
     const int F = frames.rows() / M;
     const int S = N - L + 1;
     const int FS = F * S, ML = M * L;
-    Eigen::MatrixXcd V; // eigenvectors, descending eigenvalue order
-    int dim;
+    // the Gram Yᴴ Y, or the covariance Y Yᴴ, whichever is smaller (buffers kept between calls)
+    Eigen::MatrixXcd& A = d_gram;
     if (FS <= ML) {
         // Gram route: G = Yᴴ Y (FS × FS) from X = H_fᴴ H_f' (N × N) by sums along its
         // diagonals, Y never formed. G(i,j) = Σ_l X(i+l, j+l).
-        Eigen::MatrixXcd G(FS, FS);
-        Eigen::MatrixXcd X(N, N), P(N, N);
+        A.resize(FS, FS);
+        Eigen::MatrixXcd& X = d_cross;
+        Eigen::MatrixXcd& P = d_prefix;
+        X.resize(N, N);
+        P.resize(N, N);
         for (int f = 0; f < F; f++)
             for (int g = f; g < F; g++) {
                 X.noalias() = frames.middleRows(f * M, M).adjoint() * frames.middleRows(g * M, M);
@@ -243,48 +383,47 @@ void jade::compute_subspace(const Eigen::MatrixXcd& frames)
                         cd v = P(i + L - 1, j + L - 1);
                         if (i > 0 && j > 0)
                             v -= P(i - 1, j - 1);
-                        G(f * S + i, g * S + j) = v;
+                        A(f * S + i, g * S + j) = v;
                         if (g != f)
-                            G(g * S + j, f * S + i) = std::conj(v);
+                            A(g * S + j, f * S + i) = std::conj(v);
                     }
             }
-        Eigen::SelfAdjointEigenSolver<Eigen::MatrixXcd> eig(G);
-        if (eig.info() != Eigen::Success)
-            throw std::runtime_error("jade: eigendecomposition failed");
-        d_eigenvalues = eig.eigenvalues().reverse().cwiseMax(0.0);
-        V = eig.eigenvectors().rowwise().reverse();
-        dim = FS;
     } else {
         const Eigen::MatrixXcd Y = smooth(frames, M, L);
-        Eigen::MatrixXcd R(ML, ML);
-        R.setZero();
-        R.selfadjointView<Eigen::Lower>().rankUpdate(Y);
-        R = R.selfadjointView<Eigen::Lower>();
-        Eigen::SelfAdjointEigenSolver<Eigen::MatrixXcd> eig(R);
-        if (eig.info() != Eigen::Success)
-            throw std::runtime_error("jade: eigendecomposition failed");
-        d_eigenvalues = eig.eigenvalues().reverse().cwiseMax(0.0);
-        V = eig.eigenvectors().rowwise().reverse();
-        dim = ML;
+        A.setZero(ML, ML);
+        A.selfadjointView<Eigen::Lower>().rankUpdate(Y);
+        A = A.selfadjointView<Eigen::Lower>();
     }
+    const leading_eigen eig(A);
+    const int dim = eig.size();
 
     // Model order: eigenvalues above threshold × the median eigenvalue (the noise level;
     // most eigenvalues are noise when paths are few), and above the numerical floor of
-    // noiseless data.
+    // noiseless data. Only the eigenvalues the rule looks at are computed.
     const int max_order = std::max(1, std::min(dim / 2, 32));
+    d_noise_eigenvalue = std::max(eig.kth_smallest(dim / 2), 0.0);
+    std::vector<double> leading;
     int order;
     if (d_fixed_order > 0) {
         order = std::min(d_fixed_order, dim - 1);
+        for (int k = 0; k <= order && k < dim; k++)
+            leading.push_back(std::max(eig.kth_largest(k), 0.0));
     } else {
-        Eigen::VectorXd sorted = d_eigenvalues;
-        std::nth_element(sorted.data(), sorted.data() + dim / 2, sorted.data() + dim);
-        const double median = sorted(dim / 2);
-        const double level = std::max(d_order_threshold * median, 1e-10 * d_eigenvalues(0));
+        leading.push_back(std::max(eig.kth_largest(0), 0.0));
+        const double level = std::max(d_order_threshold * d_noise_eigenvalue, 1e-10 * leading[0]);
         order = 0;
-        while (order < max_order && d_eigenvalues(order) > level)
+        while (order < max_order && leading[order] > level) {
             order++;
+            if (order < dim)
+                leading.push_back(std::max(eig.kth_largest(order), 0.0));
+            else
+                break;
+        }
     }
     d_order = order;
+    d_eigenvalues = Eigen::Map<const Eigen::VectorXd>(leading.data(), leading.size());
+    const std::vector<double> signal_values(leading.begin(), leading.begin() + order);
+    const Eigen::MatrixXcd V = eig.vectors(signal_values);
 
     d_Es.resize(ML, order);
     if (FS <= ML) {
@@ -307,41 +446,81 @@ void jade::compute_subspace(const Eigen::MatrixXcd& frames)
             d_Es = qr.householderQ() * Eigen::MatrixXcd::Identity(ML, order);
         }
     } else {
-        d_Es = V.leftCols(order);
+        d_Es = V;
     }
 }
 
 void jade::compute_spectrum()
 {
     const int A = d_angles.size(), D = d_delays.size();
-    const int order = d_order;
+    const int order = d_order, M = d_M;
     if (order == 0) {
         d_fit.setZero(A, D);
         d_spectrum_db.setZero(A, D);
         return;
     }
+    // Delay transform: per signal vector, its M×L reshape times the L×D delay manifold,
+    // kept as split real/imaginary float rows so that the angle stage vectorises over delays.
     d_Esf = d_Es.cast<cf>();
-    d_Dall.resize(d_M, D * order);
+    d_Dall.resize(M, D);
+    d_Dre.resize(size_t(order) * M * D);
+    d_Dim.resize(size_t(order) * M * D);
     for (int k = 0; k < order; k++) {
-        Eigen::Map<const RowMajorCf> B(d_Esf.col(k).data(), d_M, d_L);
-        d_Dall.middleCols(k * D, D).noalias() = B * d_Gc;
+        Eigen::Map<const RowMajorCf> B(d_Esf.col(k).data(), M, d_L);
+        d_Dall.noalias() = B * d_Gc;
+        for (int m = 0; m < M; m++)
+            for (int d = 0; d < D; d++) {
+                d_Dre[(size_t(k) * M + m) * D + d] = d_Dall(m, d).real();
+                d_Dim[(size_t(k) * M + m) * D + d] = d_Dall(m, d).imag();
+            }
     }
-    d_Z.resize(A, D * order);
-    d_Z.noalias() = d_Ah * d_Dall;
-    d_fit = d_Z.leftCols(D).cwiseAbs2();
-    for (int k = 1; k < order; k++)
-        d_fit += d_Z.middleCols(k * D, D).cwiseAbs2();
-    d_fit /= float(d_M * d_L);
-    d_spectrum_db = (-10.0f * (1.0f - d_fit.array()).max(float(min_residual)).log10()).matrix();
+    // Angle stage, fused with |·|² and the sum over signal vectors: for every angle,
+    // z_k(d) = Σ_m conj(a_m(θ)) D_k(m, d), fit(θ, d) = Σ_k |z_k(d)|² / (M·L). The M·order
+    // rows of D stay in cache; nothing of size angles × delays × order is stored.
+    d_zr.resize(D);
+    d_zi.resize(D);
+    d_acc.resize(D);
+    const float norm = 1.0f / float(M * d_L);
+    float* zr = d_zr.data();
+    float* zi = d_zi.data();
+    float* acc = d_acc.data();
+    for (int a = 0; a < A; a++) {
+        std::fill(acc, acc + D, 0.0f);
+        for (int k = 0; k < order; k++) {
+            std::fill(zr, zr + D, 0.0f);
+            std::fill(zi, zi + D, 0.0f);
+            for (int m = 0; m < M; m++) {
+                const float ar = d_Ah(a, m).real(), ai = d_Ah(a, m).imag();
+                const float* dr = &d_Dre[(size_t(k) * M + m) * D];
+                const float* di = &d_Dim[(size_t(k) * M + m) * D];
+                for (int d = 0; d < D; d++) {
+                    zr[d] += ar * dr[d] - ai * di[d];
+                    zi[d] += ar * di[d] + ai * dr[d];
+                }
+            }
+            for (int d = 0; d < D; d++)
+                acc[d] += zr[d] * zr[d] + zi[d] * zi[d];
+        }
+        for (int d = 0; d < D; d++)
+            d_fit(a, d) = acc[d] * norm;
+    }
+    // -10·log10 as a natural log (Eigen vectorises log, not log10)
+    const float db_per_neper = float(-10.0 / std::log(10.0));
+    d_spectrum_db = (db_per_neper * (1.0f - d_fit.array()).max(float(min_residual)).log()).matrix();
 }
 
 std::vector<std::pair<int, int>> jade::grid_peaks(int wanted) const
 {
     const int A = d_fit.rows(), D = d_fit.cols();
     std::vector<std::pair<float, std::pair<int, int>>> cand;
+    // A peak is a cell no lower than its 8 neighbours. The cheap tests come first: most cells
+    // are below a floor (no path has so small a projection), or below a delay neighbour.
+    constexpr float floor = 0.05f;
     for (int a = 0; a < A; a++)
         for (int d = 0; d < D; d++) {
             const float v = d_fit(a, d);
+            if (v < floor || (d > 0 && v < d_fit(a, d - 1)) || (d < D - 1 && v < d_fit(a, d + 1)))
+                continue;
             bool peak = true;
             for (int da = -1; da <= 1 && peak; da++)
                 for (int dd = -1; dd <= 1; dd++) {

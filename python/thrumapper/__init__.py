@@ -13,3 +13,5 @@ try:
 except ModuleNotFoundError:
     pass
 from . import scene, building_sim, evaluation
+from .survey import Survey, SurveyFormatError, read_survey, write_survey, group_frames_by_pose
+from .survey_blocks import survey_source, survey_sink

@@ -43,7 +43,7 @@ SPEED_OF_LIGHT_M_S = _scene.SPEED_OF_LIGHT_M_S
 # Kinds of point scatterer.
 SCATTER_DIFFUSE, SCATTER_EDGE, SCATTER_CLUTTER = 0, 1, 2
 
-# Numerical slack for "strictly in front of a face" and segment crossing tests, metres.
+# Numerical slack for "strictly in front of a face", metres.
 _EPS_M = 1e-9
 
 
@@ -177,7 +177,8 @@ def _cross(a, b):
 
 
 def building_geometry(scene):
-    """The scene's BuildingGeometry, computed once and cached on the scene."""
+    """The scene's BuildingGeometry, computed once and cached on the scene (walls, doors,
+    clutter, seed and physics are read then: load the scene again after changing them)."""
     cached = getattr(scene, "_building_geometry", None)
     if cached is not None:
         return cached
@@ -319,7 +320,7 @@ def _add_scatterers(geom, scene):
     for p in range(geom.num_pieces):
         material = geom.materials[geom.material_index[p]]
         # A surface scatters in proportion to how strongly the material reflects.
-        gamma2 = float(np.abs(slab_coefficients(material, 1.0, fc)[0]) ** 2)
+        gamma2 = float(np.abs(slab_coefficients(material, 1.0, fc)[0]).ravel()[0] ** 2)
         for side, sign in ((0, 1.0), (1, -1.0)):
             a0, a1 = geom.face_extent_m[p, side]
             count = rng.poisson(physics["diffuse_density_per_m"] * max(a1 - a0, 0.0))
@@ -583,7 +584,11 @@ def _second_order_paths(geom, physics, tx, rx, frequencies_hz, robot_xy):
 
 
 def _scatter_legs(geom, physics, elements, frequencies_hz, select):
-    """One leg per (scatterer, element): (distance (S, E), amplitude factor (S, E, N) or None, crossings (S, E))."""
+    """One leg per (scatterer, element) for the selected scatterers.
+
+    Returns (distance (S, E), radiation pattern amplitude (S, E), wall transmission (S, E, N)
+    or None when no leg crosses a wall, walls crossed (S, E)).
+    """
     pos = geom.scatter_position_m[select]
     normal = geom.scatter_normal[select]
     piece = geom.scatter_piece[select]

@@ -4,8 +4,10 @@
 #
 """Tests of the simulated building against closed forms and hand-computed geometry."""
 
+import contextlib
 import copy
 import importlib.util
+import io
 import json
 import math
 import os
@@ -122,6 +124,26 @@ class qa_building_sim(gr_unittest.TestCase):
         channel = building_sim.channel_matrix_at_pose(scene, (0, 0, 0))[k, m]
         measured = channel / ((C / f) / (4 * np.pi * length) * np.exp(-2j * np.pi * f * length / C))
         np.testing.assert_allclose(measured, gamma, rtol=0, atol=1e-5)
+
+    def test_door_gap_removes_the_specular_path(self):
+        # The specular point of the centre pair on a wall 1 m to the right is at x = 0: a door
+        # 0.9 m wide centred there (4 m along the wall) takes it away; a closed door puts back
+        # a reflection with the leaf's own coefficient.
+        wall = [{"name": "w", "segment": [[-4.0, -1.075], [4.0, -1.075]], "material": "plasterboard"}]
+        physics = {"reflections": True}
+        kinds = lambda sc: [p for p in building_sim.path_truth(sc, (0, 0, 0)) if p["kind"] == "wall"]  # noqa: E731
+        self.assertEqual(len(kinds(_scene(wall, physics))), 1)
+        self.assertEqual(kinds(_scene(wall, physics, doors=[{"wall": "w", "position_m": 4.0, "width_m": 0.9}])), [])
+        closed = kinds(_scene(wall, physics, doors=[{"wall": 0, "position_m": 4.0, "width_m": 0.9,
+                                                      "material": "wood"}]))
+        self.assertEqual(len(closed), 1)
+        wood = scene_mod.MATERIAL_PRESETS["wood"]
+        eps, d = wood.layers[0]
+        # The leaf (4 cm) sits on the wall's centre line: its face is 1.055 m away.
+        length = 2 * math.hypot(0.35, 1.075 - d / 2)
+        self.assertAlmostEqual(closed[0]["length_m"], length, delta=1e-12)
+        gamma, _ = _closed_form_slab(eps, d, 2 * (1.075 - d / 2) / length, 2.44e9)
+        self.assertAlmostEqual(closed[0]["amplitude"], C / 2.44e9 / (4 * np.pi * length) * abs(gamma), delta=1e-9)
 
     def test_slab_reflection_at_normal_incidence(self):
         f = np.linspace(2.38e9, 2.50e9, 7)
@@ -405,8 +427,11 @@ class qa_building_sim(gr_unittest.TestCase):
             except ImportError as err:
                 self.skipTest(f"survey I/O unavailable: {err}")
         with tempfile.TemporaryDirectory() as out:
-            code = cli_sim.main([os.path.join(SCENES, "paper_4_2_wall_0p7m.yaml"), "--out", out, "--quiet"])
+            printed = io.StringIO()
+            with contextlib.redirect_stdout(printed):
+                code = cli_sim.main([os.path.join(SCENES, "paper_4_2_wall_0p7m.yaml"), "--out", out, "--quiet"])
             self.assertEqual(code, 0)
+            self.assertIn(os.path.join(out, "paper_4_2_wall_0p7m.sigmf-meta"), printed.getvalue())
             recording = survey.read_survey(os.path.join(out, "paper_4_2_wall_0p7m"))
             self.assertEqual(recording.csi.shape, (4, 8, 128))
             self.assertEqual(recording.frame_types, ["survey"] * 4)
@@ -415,7 +440,10 @@ class qa_building_sim(gr_unittest.TestCase):
             with open(os.path.join(out, "paper_4_2_wall_0p7m.truth.geojson")) as handle:
                 truth = json.load(handle)
             self.assertEqual(truth["thrumapper:crs"], "local-metres")
-            self.assertEqual(cli_sim.main([os.path.join(out, "missing.yaml"), "--out", out, "--quiet"]), 2)
+            errors = io.StringIO()
+            with contextlib.redirect_stderr(errors):
+                self.assertEqual(cli_sim.main([os.path.join(out, "missing.yaml"), "--out", out, "--quiet"]), 2)
+            self.assertIn("no such scene file", errors.getvalue())
 
 
 if __name__ == "__main__":

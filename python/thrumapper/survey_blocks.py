@@ -122,11 +122,17 @@ class survey_source(gr.sync_block):
     The flowgraph ends after the last frame unless repeat.
 
     frame_types: "survey" (default), "rx_reference", "all", or a list of frame types.
+    num_rx, num_subcarriers: when given, the M and N the flowgraph expects (GRC must know
+    the vector length before the file is opened); a survey of another shape is refused.
     """
 
-    def __init__(self, path, repeat=False, frame_types="survey"):
+    def __init__(self, path, repeat=False, frame_types="survey", num_rx=None, num_subcarriers=None):
         self._survey = read_survey(path)
         survey = self._survey
+        expected = (("num_rx", num_rx, survey.num_rx), ("num_subcarriers", num_subcarriers, survey.num_subcarriers))
+        for name, wanted, actual in expected:
+            if wanted is not None and int(wanted) != actual:
+                raise ValueError(f"survey_source: {name}={wanted} but {survey.meta_path} has {actual}")
         self._frames = _select_frames(survey, frame_types)
         if self._frames.size == 0:
             raise ValueError(f"survey_source: {survey.meta_path} has no frames of type {frame_types!r}")
@@ -146,7 +152,9 @@ class survey_source(gr.sync_block):
         self._rx_times = [None if stamp is None else _rx_time_pmt(stamp) for stamp in survey.datetimes]
         overrides = np.any(survey.frame_tx_weights != survey.tx_weights, axis=1)
         self._weight_tags = [
-            pmt.init_c64vector(survey.num_tx, [complex(w) for w in survey.frame_tx_weights[f]]) if overrides[f] else None
+            pmt.init_c64vector(survey.num_tx, [complex(w) for w in survey.frame_tx_weights[f]])
+            if overrides[f]
+            else None
             for f in range(survey.num_frames)
         ]
         self._type_tags = {t: pmt.intern(t) for t in FRAME_TYPES}
@@ -158,6 +166,12 @@ class survey_source(gr.sync_block):
     def num_frames(self):
         """Number of frames played per pass."""
         return int(self._frames.size)
+
+    def num_rx(self):
+        return self._num_rx
+
+    def num_subcarriers(self):
+        return self._num_sc
 
     def work(self, input_items, output_items):
         out = output_items[0]
@@ -179,7 +193,8 @@ class survey_source(gr.sync_block):
         for i, f in enumerate(frames):
             offset = first + i
             self.add_item_tag(0, offset, KEY_FRAME_INDEX, pmt.from_uint64(int(f)), self._srcid)
-            self.add_item_tag(0, offset, KEY_RX_FREQ, pmt.from_double(float(survey.center_frequencies_hz[f])), self._srcid)
+            frequency_hz = float(survey.center_frequencies_hz[f])
+            self.add_item_tag(0, offset, KEY_RX_FREQ, pmt.from_double(frequency_hz), self._srcid)
             self.add_item_tag(0, offset, KEY_FRAME_TYPE, self._type_tags[survey.frame_types[f]], self._srcid)
             if self._rx_times[f] is not None:
                 self.add_item_tag(0, offset, KEY_RX_TIME, self._rx_times[f], self._srcid)
@@ -229,7 +244,9 @@ class survey_sink(gr.sync_block):
         if rx_m.shape[0] != num_rx:
             raise ValueError(f"rx_elements_m: expected num_rx={num_rx} positions, got {rx_m.shape[0]}")
         if offsets_hz.size != num_subcarriers:
-            raise ValueError(f"subcarrier_offsets_hz: expected num_subcarriers={num_subcarriers}, got {offsets_hz.size}")
+            raise ValueError(
+                f"subcarrier_offsets_hz: expected num_subcarriers={num_subcarriers}, got {offsets_hz.size}"
+            )
         center_frequency_hz = float(center_frequency_hz)
         if not np.isfinite(center_frequency_hz):
             raise ValueError("center_frequency_hz: must be finite")
@@ -242,7 +259,9 @@ class survey_sink(gr.sync_block):
         names = get_sigmf_filenames(os.fspath(path))
         self._meta_path, self._data_path = str(names["meta_fn"]), str(names["data_fn"])
 
-        gr.sync_block.__init__(self, name="survey_sink", in_sig=[(np.complex64, num_rx * num_subcarriers)], out_sig=None)
+        gr.sync_block.__init__(
+            self, name="survey_sink", in_sig=[(np.complex64, num_rx * num_subcarriers)], out_sig=None
+        )
         self.message_port_register_in(POSE_PORT)
         self.set_msg_handler(POSE_PORT, self.handle_pose)
 
@@ -288,7 +307,8 @@ class survey_sink(gr.sync_block):
     def handle_pose(self, msg):
         pose = pose_from_pmt(msg)
         if pose is None:
-            self.logger.warn(f"ignoring a pose message that holds no finite [x, y, heading]: {pmt.write_string(msg)[:200]}")
+            text = pmt.write_string(msg)[:200]
+            self.logger.warn(f"ignoring a pose message that holds no finite [x, y, heading]: {text}")
             return
         with self._lock:
             self._pose = pose
@@ -315,10 +335,10 @@ class survey_sink(gr.sync_block):
             )
         return True
 
-    def _log_skip(self, count, reason):
+    def _log_skip(self, item, count, reason):
         # The first skip, then every 1000th: a long run of bad frames must not flood the log.
         if count == 1 or count % 1000 == 0:
-            self.logger.warn(f"skipping frame {count} {reason}")
+            self.logger.warn(f"skipping input item {item}: {reason} ({count} so far)")
 
     def work(self, input_items, output_items):
         frames = input_items[0]
@@ -357,11 +377,11 @@ class survey_sink(gr.sync_block):
                             weights = values if np.any(values != self._tx_weights) else None
                 if not finite[i]:
                     self._skipped_nonfinite += 1
-                    self._log_skip(self._skipped_nonfinite, "with NaN/Inf CSI")
+                    self._log_skip(first + i, self._skipped_nonfinite, "CSI holds NaN/Inf")
                     continue
                 if frame_type == "survey" and self._pose is None:
                     self._skipped_no_pose += 1
-                    self._log_skip(self._skipped_no_pose, "recorded before any pose")
+                    self._log_skip(first + i, self._skipped_no_pose, "survey frame before any pose")
                     continue
                 keep[i] = True
                 self._captures.append(

@@ -97,8 +97,13 @@ public:
     {
         return d_spectrum_db;
     }
-    //! Eigenvalues of the smoothed data's Gram (or covariance), descending, last estimate.
+    /*!
+     * \brief The leading eigenvalues of the smoothed data's Gram (or covariance) in the last
+     * estimate, descending: the signal eigenvalues and the first below the order threshold.
+     */
     const Eigen::VectorXd& eigenvalues() const { return d_eigenvalues; }
+    //! The median eigenvalue of the last estimate: the noise level of the order rule.
+    double noise_eigenvalue() const { return d_noise_eigenvalue; }
     //! Model order used by the last estimate.
     int model_order() const { return d_order; }
     //! Orthonormal signal subspace of the last estimate, (M·L) × order.
@@ -142,14 +147,17 @@ private:
     Eigen::MatrixXcf d_Ah;   // angles × M: conj(a_m(θ))
     Eigen::MatrixXcf d_Gc;   // L × D: conj(g_l(τ)), τ including the system delay
     // per-estimate state, kept to avoid reallocation
+    Eigen::MatrixXcd d_gram, d_cross, d_prefix;
     Eigen::MatrixXcd d_Es;   // (M·L) × order
     Eigen::MatrixXcf d_Esf;
-    Eigen::MatrixXcf d_Dall; // M × (D·order)
-    Eigen::MatrixXcf d_Z;    // A × (D·order)
+    Eigen::MatrixXcf d_Dall; // M × D, one signal vector's delay transform
+    std::vector<float> d_Dre, d_Dim; // order × M × D, split real and imaginary parts
+    std::vector<float> d_zr, d_zi, d_acc;
     Eigen::VectorXd d_eigenvalues;
+    double d_noise_eigenvalue = 0;
     int d_order;
     Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> d_spectrum_db;
-    Eigen::MatrixXf d_fit;   // A × D normalised projection
+    Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> d_fit; // A × D projection
 };
 
 } // namespace thrumapper

@@ -5,7 +5,7 @@
 /* BINDTOOL_GEN_AUTOMATIC(0) */
 /* BINDTOOL_USE_PYGCCXML(0) */
 /* BINDTOOL_HEADER_FILE(jade.h) */
-/* BINDTOOL_HEADER_FILE_HASH(ba4e778ba2be9c236f14bfbfc733cadd) */
+/* BINDTOOL_HEADER_FILE_HASH(da0243a32b573ac276ca901243ec97c5) */
 
 #include <pybind11/complex.h>
 #include <pybind11/eigen.h>
@@ -116,7 +116,10 @@ JADE joint angle-delay estimator (paper eq. 5-8), the C++ core of jade_estimator
             py::arg("csi"),
             "Paths in CSI of shape (M, N) or (F, M, N) (F frames of one pose), strongest first.")
         .def_property_readonly("spectrum_db", &jade::spectrum_db, "Last spectrum, dB, angles × delays.")
-        .def_property_readonly("eigenvalues", &jade::eigenvalues)
+        .def_property_readonly("eigenvalues", &jade::eigenvalues,
+                               "Leading eigenvalues of the last estimate, descending.")
+        .def_property_readonly("noise_eigenvalue", &jade::noise_eigenvalue,
+                               "Median eigenvalue of the last estimate (the noise level).")
         .def_property_readonly("model_order", &jade::model_order)
         .def_property_readonly("signal_subspace", &jade::signal_subspace)
         .def("subspace_fit", &jade::subspace_fit, py::arg("aoa_rad"), py::arg("delay_s"))
