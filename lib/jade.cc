@@ -4,6 +4,7 @@
  */
 #include <gnuradio/thrumapper/jade.h>
 #include <gnuradio/thrumapper/manifold.h>
+#include <gnuradio/thrumapper/projection.h>
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <limits>
@@ -683,13 +684,30 @@ bool jade::refine_peak(double& aoa_rad, double& delay_total_s) const
 
 void jade::fit_amplitudes(const Eigen::MatrixXcd& frames, std::vector<jade_path>& paths) const
 {
-    const int P = paths.size();
-    if (P == 0)
+    if (paths.empty())
         return;
     const int M = d_M, N = d_N, F = frames.rows() / M;
+    // Keep, in the given order, only paths the data can tell apart: a manifold vector within
+    // 0.995 correlation of the span of those kept is the same echo found twice (a least-squares
+    // fit of both would give them huge opposite gains).
+    std::vector<jade_path> kept;
+    std::vector<Eigen::VectorXcd> basis, columns;
+    for (const auto& p : paths) {
+        Eigen::VectorXcd u = space_time_manifold(*d_radar, p.aoa_rad, p.delay_s + d_system_delay_s);
+        Eigen::VectorXcd r = u;
+        for (const auto& q : basis)
+            r -= q * q.dot(r);
+        if (r.squaredNorm() < 1e-2 * u.squaredNorm())
+            continue;
+        basis.push_back(r.normalized());
+        columns.push_back(u);
+        kept.push_back(p);
+    }
+    paths = kept;
+    const int P = paths.size();
     Eigen::MatrixXcd U(M * N, P);
     for (int p = 0; p < P; p++)
-        U.col(p) = space_time_manifold(*d_radar, paths[p].aoa_rad, paths[p].delay_s + d_system_delay_s);
+        U.col(p) = columns[p];
     const Eigen::MatrixXcd UhU = U.adjoint() * U;
     const Eigen::LDLT<Eigen::MatrixXcd> ldlt(UhU);
     Eigen::VectorXd power = Eigen::VectorXd::Zero(P);
@@ -716,17 +734,16 @@ std::vector<jade_path> jade::estimate(const std::complex<float>* frames, int num
     return estimate_matrix(map.cast<cd>());
 }
 
-std::vector<jade_path> jade::estimate_matrix(const Eigen::MatrixXcd& frames)
+std::vector<jade_path> jade::estimate_once(const Eigen::MatrixXcd& frames, int max_paths)
 {
-    check_frames(frames);
     compute_subspace(frames);
     compute_spectrum();
     std::vector<jade_path> paths;
-    const int wanted = std::min(d_order, d_max_paths);
+    const int wanted = std::min(d_order, max_paths);
     if (wanted == 0)
         return paths;
     // A few spare grid peaks: refinement may merge two cells of one peak.
-    const auto peaks = grid_peaks(wanted + 4);
+    const auto peaks = grid_peaks(d_order + 4);
     const double merge_angle = 1e-3, merge_delay = 1e-12;
     for (const auto& pk : peaks) {
         double th = d_angles[pk.first];
@@ -751,17 +768,94 @@ std::vector<jade_path> jade::estimate_matrix(const Eigen::MatrixXcd& frames)
         p.spectrum_db = -10.0 * std::log10(std::max(1.0 - fit_at(th, tau), min_residual));
         paths.push_back(p);
     }
-    // keep the strongest peaks of the pseudo-spectrum, then order by fitted power
+    // The pseudo-spectrum's height is not power: fit the gains of every peak the model order
+    // allows, together, and keep the strongest.
     std::sort(paths.begin(), paths.end(), [](const jade_path& x, const jade_path& y) {
         return x.spectrum_db > y.spectrum_db;
     });
-    if (static_cast<int>(paths.size()) > wanted)
-        paths.resize(wanted);
+    if (static_cast<int>(paths.size()) > d_order)
+        paths.resize(d_order);
     fit_amplitudes(frames, paths);
-    std::sort(paths.begin(), paths.end(), [](const jade_path& x, const jade_path& y) {
+    std::stable_sort(paths.begin(), paths.end(), [](const jade_path& x, const jade_path& y) {
         return x.power > y.power;
     });
+    if (static_cast<int>(paths.size()) > wanted)
+        paths.resize(wanted);
     return paths;
+}
+
+std::vector<jade_path> jade::estimate_matrix(const Eigen::MatrixXcd& frames)
+{
+    check_frames(frames);
+    if (d_stages <= 1)
+        return estimate_once(frames, d_max_paths);
+
+    // Successive cancellation (paper §2.3.2, §4.3): estimate; cancel every return found by
+    // projection (path_projector, on the whole frames); estimate again on what is left, where
+    // weaker returns are no longer outranked. Each stage reports up to max_paths paths. Stops
+    // after the last stage, or when what is left is noise (the model-order rule finds no
+    // signal: on noise alone it fires in fewer than 1 frame in 1000), or when a stage finds
+    // only paths next to those already cancelled (the residue of an echo estimated a little
+    // off, or of model mismatch, not new echoes).
+    if (!d_projector)
+        d_projector = std::make_unique<path_projector>(d_radar);
+    d_projector->set_system_delay(d_system_delay_s);
+    std::vector<double> aoas, delays;
+    d_projector->set_paths(aoas, delays);
+    std::vector<jade_path> found;
+    Eigen::MatrixXcd work = frames;
+    Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> first_spectrum;
+    Eigen::VectorXd first_eigenvalues;
+    int first_order = 0;
+    for (int stage = 0; stage < d_stages; stage++) {
+        std::vector<jade_path> paths = estimate_once(work, d_max_paths);
+        if (stage == 0) {
+            first_spectrum = d_spectrum_db;
+            first_eigenvalues = d_eigenvalues;
+            first_order = d_order;
+        }
+        int added = 0;
+        for (auto& p : paths) {
+            // within a quarter of a resolution cell (5°, 1 ns) of an echo already cancelled:
+            // what its imperfect cancellation left, not a new echo
+            bool again = false;
+            for (const auto& q : found) {
+                double dth = std::abs(q.aoa_rad - p.aoa_rad);
+                dth = std::min(dth, two_pi - dth);
+                const double a = dth / (5 * M_PI / 180), d = (q.delay_s - p.delay_s) / 1e-9;
+                if (a * a + d * d < 1)
+                    again = true;
+            }
+            if (again)
+                continue;
+            p.stage = stage;
+            found.push_back(p);
+            aoas.push_back(p.aoa_rad);
+            delays.push_back(p.delay_s);
+            added++;
+        }
+        if (added == 0 || stage == d_stages - 1)
+            break;
+        d_projector->set_paths(aoas, delays);
+        work = d_projector->apply_matrix(frames);
+    }
+    // The gains of all the paths found, fitted together on the original frames; the
+    // spectrum and eigenvalues reported are those of the first stage (the raw data).
+    fit_amplitudes(frames, found);
+    std::stable_sort(found.begin(), found.end(), [](const jade_path& x, const jade_path& y) {
+        return x.power > y.power;
+    });
+    d_spectrum_db = first_spectrum;
+    d_eigenvalues = first_eigenvalues;
+    d_order = first_order;
+    return found;
+}
+
+void jade::set_stages(int stages)
+{
+    if (stages < 1 || stages > 16)
+        throw std::invalid_argument("stages: expected 1 to 16, got " + std::to_string(stages));
+    d_stages = stages;
 }
 
 } // namespace thrumapper

@@ -42,7 +42,8 @@ jade_estimator::sptr jade_estimator::make(radar_description::sptr radar,
                                           double delay_max_s,
                                           int max_paths,
                                           int smoothing_window,
-                                          double system_delay_s)
+                                          double system_delay_s,
+                                          int stages)
 {
     return gnuradio::make_block_sptr<jade_estimator_impl>(radar,
                                                           num_angles,
@@ -53,7 +54,8 @@ jade_estimator::sptr jade_estimator::make(radar_description::sptr radar,
                                                           delay_max_s,
                                                           max_paths,
                                                           smoothing_window,
-                                                          system_delay_s);
+                                                          system_delay_s,
+                                                          stages);
 }
 
 std::vector<double> jade_estimator_impl::angle_grid(int count, double min_deg, double max_deg)
@@ -87,7 +89,8 @@ jade_estimator_impl::jade_estimator_impl(radar_description::sptr radar,
                                          double delay_max_s,
                                          int max_paths,
                                          int smoothing_window,
-                                         double system_delay_s)
+                                         double system_delay_s,
+                                         int stages)
     : gr::block("jade_estimator",
                 gr::io_signature::make(1, 1, sizeof(gr_complex) * require_radar(radar)->num_rx() *
                                                  radar->num_subcarriers()),
@@ -105,6 +108,7 @@ jade_estimator_impl::jade_estimator_impl(radar_description::sptr radar,
       d_port(pmt::mp("paths"))
 {
     d_jade.set_system_delay(system_delay_s);
+    d_jade.set_stages(stages);
     message_port_register_out(d_port);
     set_tag_propagation_policy(TPP_DONT); // tags are re-attached to the matching output item
 }
@@ -226,6 +230,18 @@ void jade_estimator_impl::set_model_order(int order)
 {
     std::lock_guard<std::mutex> lock(d_mutex);
     d_jade.set_model_order(order);
+}
+
+void jade_estimator_impl::set_stages(int stages)
+{
+    std::lock_guard<std::mutex> lock(d_mutex);
+    d_jade.set_stages(stages);
+}
+
+int jade_estimator_impl::stages() const
+{
+    std::lock_guard<std::mutex> lock(d_mutex);
+    return d_jade.stages();
 }
 
 int jade_estimator_impl::max_paths() const

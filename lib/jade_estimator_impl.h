@@ -37,7 +37,8 @@ public:
                         double delay_max_s,
                         int max_paths,
                         int smoothing_window,
-                        double system_delay_s);
+                        double system_delay_s,
+                        int stages);
 
     void forecast(int noutput_items, gr_vector_int& ninput_items_required) override;
     int general_work(int noutput_items,
@@ -51,6 +52,8 @@ public:
     void set_smoothing_window(int subcarriers) override;
     void set_system_delay(double system_delay_s) override;
     void set_model_order(int order) override;
+    void set_stages(int stages) override;
+    int stages() const override;
 
     int num_angles() const override { return d_num_angles; }
     int num_delays() const override { return d_num_delays; }

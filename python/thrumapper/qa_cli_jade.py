@@ -77,7 +77,7 @@ class qa_cli_jade(gr_unittest.TestCase):
         self.assertTrue(os.path.getsize(png) > 10000)
 
     def test_override_system_delay(self):
-        out = run_cli(self.meta, "--paths", "1", "--system-delay-s", "30e-9", "--quiet")
+        out = run_cli(self.meta, "--paths", "3", "--system-delay-s", "30e-9", "--quiet")
         self.assertEqual(out.returncode, 0, out.stderr)
         want_delay = 2 * math.hypot(2.2, 0.35) / C + 5e-9  # 5 ns less removed
         delays = [p["delay_s"] for p in json.loads(out.stdout.splitlines()[0])["paths"]]

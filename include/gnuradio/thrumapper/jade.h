@@ -6,9 +6,11 @@
 #define INCLUDED_THRUMAPPER_JADE_H
 
 #include <gnuradio/thrumapper/api.h>
+#include <gnuradio/thrumapper/projection.h>
 #include <gnuradio/thrumapper/radar_description.h>
 #include <Eigen/Dense>
 #include <complex>
+#include <memory>
 #include <vector>
 
 namespace gr {
@@ -75,6 +77,14 @@ public:
     //! System delay τ_sys removed from every delay (FORMATS.md); default 0.
     void set_system_delay(double system_delay_s);
     void set_refine(bool refine);
+    /*!
+     * \brief Successive cancellation: 1 (the default) estimates once; S > 1 estimates, cancels
+     * the returns found by projection (path_projector), estimates again on what is left, up to
+     * S stages or until the residual is noise. Each stage reports up to max_paths paths; each
+     * path records its stage.
+     */
+    void set_stages(int stages);
+    int stages() const { return d_stages; }
 
     const std::vector<double>& angle_grid() const { return d_angles; }
     const std::vector<double>& delay_grid() const { return d_delays; }
@@ -126,6 +136,7 @@ private:
     void compute_subspace(const Eigen::MatrixXcd& frames);
     void compute_spectrum();
     std::vector<std::pair<int, int>> grid_peaks(int wanted) const;
+    std::vector<jade_path> estimate_once(const Eigen::MatrixXcd& frames, int max_paths);
     bool refine_peak(double& aoa_rad, double& delay_total_s) const;
     void fit_amplitudes(const Eigen::MatrixXcd& frames, std::vector<jade_path>& paths) const;
     double fit_at(double aoa_rad, double delay_total_s) const;
@@ -137,6 +148,8 @@ private:
     double d_order_threshold;
     double d_system_delay_s;
     bool d_refine;
+    int d_stages = 1;
+    std::unique_ptr<path_projector> d_projector;
     double d_df_hz;
     double d_k_rad_m;
     Eigen::VectorXd d_rx_x, d_rx_y; // RX elements relative to the RX centre

@@ -49,6 +49,8 @@ public:
      * \param max_paths most paths reported per frame.
      * \param smoothing_window subcarriers per smoothing window L; 0 means N/3.
      * \param system_delay_s τ_sys, removed from every delay.
+     * \param stages successive-cancellation stages (1: estimate once); each path's "stage"
+     *        says which stage found it.
      */
     static sptr make(radar_description::sptr radar,
                      int num_angles = 360,
@@ -59,7 +61,8 @@ public:
                      double delay_max_s = 40e-9,
                      int max_paths = 4,
                      int smoothing_window = 0,
-                     double system_delay_s = 0.0);
+                     double system_delay_s = 0.0,
+                     int stages = 1);
 
     virtual void set_angle_span(double angle_min_deg, double angle_max_deg) = 0;
     virtual void set_delay_span(double delay_min_s, double delay_max_s) = 0;
@@ -68,12 +71,14 @@ public:
     virtual void set_system_delay(double system_delay_s) = 0;
     //! 0: automatic model order from the eigenvalues; otherwise fixed.
     virtual void set_model_order(int order) = 0;
+    virtual void set_stages(int stages) = 0;
 
     virtual int num_angles() const = 0;
     virtual int num_delays() const = 0;
     virtual int max_paths() const = 0;
     virtual int smoothing_window() const = 0;
     virtual double system_delay() const = 0;
+    virtual int stages() const = 0;
     //! Frames skipped for bad input since start.
     virtual uint64_t num_skipped() const = 0;
     //! Frames estimated since start.

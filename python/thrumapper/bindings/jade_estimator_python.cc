@@ -5,7 +5,7 @@
 /* BINDTOOL_GEN_AUTOMATIC(0) */
 /* BINDTOOL_USE_PYGCCXML(0) */
 /* BINDTOOL_HEADER_FILE(jade_estimator.h) */
-/* BINDTOOL_HEADER_FILE_HASH(e054e9e726ace33f803dc3d49e1a515c) */
+/* BINDTOOL_HEADER_FILE_HASH(4e4dc6e1e325512837fb8e9de4b3d9a8) */
 
 #include <pybind11/complex.h>
 #include <pybind11/pybind11.h>
@@ -41,13 +41,16 @@ Bad frames (NaN/Inf, all zeros) are logged, counted (num_skipped) and give no ou
              py::arg("delay_max_s") = 40e-9,
              py::arg("max_paths") = 4,
              py::arg("smoothing_window") = 0,
-             py::arg("system_delay_s") = 0.0)
+             py::arg("system_delay_s") = 0.0,
+             py::arg("stages") = 1)
         .def("set_angle_span", &jade_estimator::set_angle_span, py::arg("angle_min_deg"), py::arg("angle_max_deg"))
         .def("set_delay_span", &jade_estimator::set_delay_span, py::arg("delay_min_s"), py::arg("delay_max_s"))
         .def("set_max_paths", &jade_estimator::set_max_paths, py::arg("max_paths"))
         .def("set_smoothing_window", &jade_estimator::set_smoothing_window, py::arg("subcarriers"))
         .def("set_system_delay", &jade_estimator::set_system_delay, py::arg("system_delay_s"))
         .def("set_model_order", &jade_estimator::set_model_order, py::arg("order"))
+        .def("set_stages", &jade_estimator::set_stages, py::arg("stages"))
+        .def("stages", &jade_estimator::stages)
         .def("num_angles", &jade_estimator::num_angles)
         .def("num_delays", &jade_estimator::num_delays)
         .def("max_paths", &jade_estimator::max_paths)

@@ -5,7 +5,7 @@
 /* BINDTOOL_GEN_AUTOMATIC(0) */
 /* BINDTOOL_USE_PYGCCXML(0) */
 /* BINDTOOL_HEADER_FILE(jade.h) */
-/* BINDTOOL_HEADER_FILE_HASH(da0243a32b573ac276ca901243ec97c5) */
+/* BINDTOOL_HEADER_FILE_HASH(e97580dd912d391529e24891ff62cf07) */
 
 #include <pybind11/complex.h>
 #include <pybind11/eigen.h>
@@ -99,6 +99,9 @@ JADE joint angle-delay estimator (paper eq. 5-8), the C++ core of jade_estimator
         .def("set_order_threshold", &jade::set_order_threshold, py::arg("factor"))
         .def("set_system_delay", &jade::set_system_delay, py::arg("system_delay_s"))
         .def("set_refine", &jade::set_refine, py::arg("refine"))
+        .def("set_stages", &jade::set_stages, py::arg("stages"),
+             "Successive cancellation: estimate, cancel the strongest return, estimate again.")
+        .def_property_readonly("stages", &jade::stages)
         .def_property_readonly("angle_grid", &jade::angle_grid)
         .def_property_readonly("delay_grid", &jade::delay_grid)
         .def_property_readonly("smoothing_window", &jade::smoothing_window)

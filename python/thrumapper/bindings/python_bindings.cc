@@ -15,6 +15,8 @@ void bind_radar_description(py::module& m);
 void bind_manifold(py::module& m);
 void bind_jade(py::module& m);
 void bind_jade_estimator(py::module& m);
+void bind_null_steering(py::module& m);
+void bind_projection(py::module& m);
 
 // import_array() returns NULL on newer Pythons, hence the wrapper
 void* init_numpy()
@@ -34,4 +36,6 @@ PYBIND11_MODULE(thrumapper_python, m)
     bind_manifold(m);
     bind_jade(m);
     bind_jade_estimator(m);
+    bind_null_steering(m);
+    bind_projection(m);
 }
