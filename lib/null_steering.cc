@@ -151,18 +151,28 @@ std::vector<gr_complex> null_steering::design(double main_lobe_rad,
     for (size_t i = 0; i < null_angles_rad.size(); i++)
         fixed.col(i) = far_field(null_angles_rad[i], d_radar->carrier_hz()).conjugate();
     const int free_dims = K - 1 - int(null_angles_rad.size());
+    // main-lobe gain |a(θ)ᵀw|²/‖w‖² of the plain beam (K); no receiver direction is bought
+    // with more than 3 dB of it
+    const double plain_gain = beam.squaredNorm();
+    auto gain = [&](const Eigen::VectorXcd& v) { return std::norm(beam.dot(v)) / v.squaredNorm(); };
     Eigen::VectorXcd w;
     for (int r = 0; r <= (null_receiver ? free_dims : 0); r++) {
         Eigen::MatrixXcd avoid(K, fixed.cols() + r);
         avoid << fixed, d_coupling_dirs.leftCols(r);
-        w = beam;
+        Eigen::VectorXcd v = beam;
         if (avoid.cols() > 0) {
             const Eigen::HouseholderQR<Eigen::MatrixXcd> qr(avoid);
             const Eigen::MatrixXcd Q = qr.householderQ() * Eigen::MatrixXcd::Identity(K, avoid.cols());
-            w -= Q * (Q.adjoint() * w);
+            v -= Q * (Q.adjoint() * v);
         }
-        if (w.norm() < 1e-9 * beam.norm())
-            throw std::invalid_argument("null_steering: the nulls leave no main lobe");
+        if (v.norm() < 1e-9 * beam.norm()) {
+            if (r == 0)
+                throw std::invalid_argument("null_steering: the nulls leave no main lobe");
+            break;
+        }
+        if (r > 0 && gain(v) < 0.5 * plain_gain)
+            break;
+        w = v;
         if (!null_receiver || depth_db(w) <= d_target_depth_db)
             break;
     }

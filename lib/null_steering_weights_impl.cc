@@ -91,7 +91,7 @@ public:
                                double update_period_s)
         : gr::sync_block("null_steering_weights",
                          gr::io_signature::make(0, 0, 0),
-                         gr::io_signature::make(1, 1, sizeof(float) * std::max(num_angles, 1))),
+                         gr::io_signature::make(0, 1, sizeof(float) * std::max(num_angles, 1))),
           d_design(radar),
           d_num_angles(num_angles),
           d_period(update_period_s),

@@ -17,6 +17,8 @@ class projection_canceller_impl : public projection_canceller
     const int d_M, d_N;
     mutable std::mutex d_mutex; // guards d_proj: messages and setters come from other threads
     path_projector d_proj;
+    std::vector<gr_complex> d_weights; // the direct path's weights outside tagged frames
+    const pmt::pmt_t k_tx_weights = pmt::mp("tx_weights");
     std::atomic<uint64_t> d_skipped{ 0 };
     std::atomic<uint64_t> d_bad_messages{ 0 };
 
@@ -100,6 +102,7 @@ class projection_canceller_impl : public projection_canceller
         try {
             std::lock_guard<std::mutex> lock(d_mutex);
             d_proj.set_direct_path(d_proj.cancels_direct_path(), w);
+            d_weights = w;
         } catch (const std::exception& e) {
             bad_message(e.what());
         }
@@ -156,9 +159,33 @@ public:
                                uint64_t(d_skipped));
                 continue;
             }
-            d_proj.apply(frame, out + produced * len, 1);
             std::vector<tag_t> tags;
             get_tags_in_range(tags, 0, nitems_read(0) + i, nitems_read(0) + i + 1);
+            // a "tx_weights" tag (survey_source puts one on frames whose weights differ from
+            // the survey's global ones) holds for its frame only
+            std::vector<gr_complex> frame_weights;
+            for (const auto& t : tags)
+                if (pmt::eqv(t.key, k_tx_weights)) {
+                    if (pmt::is_c64vector(t.value))
+                        for (const auto& x : pmt::c64vector_elements(t.value))
+                            frame_weights.emplace_back(float(x.real()), float(x.imag()));
+                    else if (pmt::is_c32vector(t.value))
+                        frame_weights = pmt::c32vector_elements(t.value);
+                }
+            if (!frame_weights.empty() && d_proj.cancels_direct_path()) {
+                const std::vector<gr_complex> held = d_weights;
+                try {
+                    d_proj.set_direct_path(true, frame_weights);
+                    d_proj.apply(frame, out + produced * len, 1);
+                } catch (const std::exception& e) {
+                    bad_message(std::string("tx_weights tag: ") + e.what());
+                    d_proj.set_direct_path(true, held);
+                    d_proj.apply(frame, out + produced * len, 1);
+                }
+                d_proj.set_direct_path(true, held);
+            } else {
+                d_proj.apply(frame, out + produced * len, 1);
+            }
             for (const auto& t : tags)
                 add_item_tag(0, nitems_written(0) + produced, t.key, t.value);
             produced++;
@@ -175,7 +202,7 @@ public:
     void set_cancel_direct(bool cancel_direct) override
     {
         std::lock_guard<std::mutex> lock(d_mutex);
-        d_proj.set_direct_path(cancel_direct);
+        d_proj.set_direct_path(cancel_direct, d_weights);
     }
     void set_system_delay(double system_delay_s) override
     {
@@ -186,6 +213,7 @@ public:
     {
         std::lock_guard<std::mutex> lock(d_mutex);
         d_proj.set_direct_path(d_proj.cancels_direct_path(), weights);
+        d_weights = weights;
     }
     int rank() const override
     {

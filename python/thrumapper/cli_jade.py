@@ -21,6 +21,11 @@ output:
   array centre to the RX array centre, the system delay removed (FORMATS.md). power: |gain|^2
   of the path in CSI units, averaged over the group's frames.
 
+direct path:
+  the direct TX->RX path is near-field: JADE's far-field model would see it as a spray of
+  weak paths below ~3 ns. It is cancelled first, by projection onto the complement of its
+  exact response (the frame's TX weights, the system delay); --keep-direct-path keeps it.
+
 system delay:
   taken from --system-delay-s, else from the survey's thrumapper:system_delay_s, else
   measured on the direct TX->RX path, whose geometry is known (delays are then defined
@@ -30,6 +35,7 @@ examples:
   thrumapper-sim examples/scenes/paper_4_2_wall_0p7m.yaml --out out/
   thrumapper-jade out/paper_4_2_wall_0p7m.sigmf-meta --paths 3 --png out/surface.png
   thrumapper-jade survey.sigmf-meta --max-delay-s 80e-9 | jq '.paths[0].delay_s'
+  thrumapper-jade out/paper_4_3_hidden_2p2m.sigmf-meta --paths 3 --stages 3
 """
 
 
@@ -54,6 +60,13 @@ def build_parser():
                    help="delay grid end (default 60e-9: walls up to about 9 m)")
     p.add_argument("--angles", type=int, default=360, help="angle grid size over 360 deg (default 360)")
     p.add_argument("--delays", type=int, default=240, help="delay grid size (default 240)")
+    p.add_argument("--stages", type=int, default=1, metavar="S",
+                   help="successive cancellation: estimate, cancel the returns found, estimate "
+                        "again on what is left, up to S stages (default 1); each path then "
+                        "carries the \"stage\" that found it")
+    p.add_argument("--keep-direct-path", action="store_true",
+                   help="do not cancel the direct TX->RX path (by default it is projected out "
+                        "with its exact near-field response before JADE)")
     p.add_argument("--smoothing-window", type=int, default=0, metavar="L",
                    help="subcarriers per smoothing window (default 0: N/3)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -69,7 +82,8 @@ def main(argv=None):
         return 2
     settings = JadeSettings(num_angles=args.angles, num_delays=args.delays,
                             delay_max_s=args.max_delay_s, max_paths=args.paths,
-                            smoothing_window=args.smoothing_window)
+                            smoothing_window=args.smoothing_window, stages=args.stages,
+                            cancel_direct_path=not args.keep_direct_path)
     progress = None
     if not args.quiet and sys.stderr.isatty():
         from tqdm import tqdm
@@ -80,6 +94,9 @@ def main(argv=None):
     try:
         for i, result in enumerate(run_survey(survey, settings, args.system_delay_s, progress)):
             line = {k: result[k] for k in ("frames", "pose", "paths")}
+            if args.stages == 1:  # the stage says nothing without successive cancellation
+                line["paths"] = [{k: p[k] for k in ("aoa_deg", "delay_s", "power")}
+                                 for p in line["paths"]]
             print(json.dumps(line), flush=True)
             if args.png and i == args.png_group:
                 plot_surface(result, args.png)

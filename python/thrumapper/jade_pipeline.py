@@ -26,6 +26,11 @@ class JadeSettings:
     delay_max_s: float = 60e-9
     max_paths: int = 4
     smoothing_window: int = 0
+    #: successive-cancellation stages (1: estimate once); each stage reports up to max_paths
+    stages: int = 1
+    #: cancel the direct TX->RX path with its exact near-field response before JADE (its
+    #: far-field image is a spray of weak unphysical paths below ~3 ns)
+    cancel_direct_path: bool = True
 
     def check(self):
         if self.num_angles < 3:
@@ -38,6 +43,8 @@ class JadeSettings:
                              f"delay_min_s ({self.delay_min_s})")
         if not 1 <= self.max_paths <= 64:
             raise ValueError(f"max_paths: expected 1 to 64, got {self.max_paths}")
+        if not 1 <= self.stages <= 16:
+            raise ValueError(f"stages: expected 1 to 16, got {self.stages}")
 
 
 def radar_from_survey(survey, carrier_hz=None, tx_weights=None):
@@ -55,6 +62,7 @@ def make_estimator(radar, settings):
                      _core.jade.linear_grid(settings.delay_min_s, settings.delay_max_s,
                                             settings.num_delays),
                      settings.smoothing_window, settings.max_paths)
+    est.set_stages(settings.stages)
     return est
 
 
@@ -125,7 +133,7 @@ def run_survey(survey, settings=None, system_delay_s=None, progress=None):
     """JADE on every pose group of a survey.
 
     Yields one dict per group: {"frames": [...], "pose": [x, y, heading],
-    "paths": [{"aoa_deg", "delay_s", "power"}, ...], "model_order": int,
+    "paths": [{"aoa_deg", "delay_s", "power", "stage"}, ...], "model_order": int,
     "spectrum_db": (A, D) array}. The system delay comes from the argument, else the survey,
     else the direct path. `progress` is an optional tqdm-like wrapper for the group list.
     """
@@ -136,21 +144,31 @@ def run_survey(survey, settings=None, system_delay_s=None, progress=None):
     if system_delay_s is None:
         system_delay_s = estimate_system_delay(survey, groups)
     estimators = {}
+    projectors = {}
     iterable = progress(groups) if progress else groups
     for frames, pose in iterable:
         fc = float(survey.center_frequencies_hz[frames[0]])
-        key = fc
-        if key not in estimators:
+        if fc not in estimators:
             est = make_estimator(radar_from_survey(survey, fc), settings)
             est.set_system_delay(system_delay_s)
-            estimators[key] = est
-        est = estimators[key]
-        paths = est.estimate(np.asarray(survey.csi[frames], np.complex128))
+            estimators[fc] = est
+        est = estimators[fc]
+        csi = np.asarray(survey.csi[frames], np.complex128)
+        if settings.cancel_direct_path:
+            weights = tuple(complex(w) for w in survey.frame_tx_weights[frames[0]])
+            key = (fc, weights)
+            if key not in projectors:
+                proj = _core.path_projector(est.radar)
+                proj.set_system_delay(system_delay_s)
+                proj.set_direct_path(True, list(weights))
+                projectors[key] = proj
+            csi = projectors[key].apply(csi)
+        paths = est.estimate(csi)
         yield {
             "frames": [int(f) for f in frames],
             "pose": [float(v) for v in pose],
-            "paths": [{"aoa_deg": p.aoa_deg % 360.0, "delay_s": p.delay_s, "power": p.power}
-                      for p in paths],
+            "paths": [{"aoa_deg": p.aoa_deg % 360.0, "delay_s": p.delay_s, "power": p.power,
+                       "stage": p.stage} for p in paths],
             "model_order": est.model_order,
             "system_delay_s": system_delay_s,
             "spectrum_db": np.array(est.spectrum_db),

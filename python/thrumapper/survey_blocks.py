@@ -49,6 +49,7 @@ KEY_RX_TIME = pmt.intern("rx_time")
 KEY_RX_FREQ = pmt.intern("rx_freq")
 KEY_FRAME_TYPE = pmt.intern("frame_type")
 KEY_TX_WEIGHTS = pmt.intern("tx_weights")
+WEIGHTS_PORT = pmt.intern("weights")
 KEY_X = pmt.intern("x")
 KEY_Y = pmt.intern("y")
 KEY_HEADING = pmt.intern("heading")
@@ -119,6 +120,8 @@ class survey_source(gr.sync_block):
     "rx_time" (tuple (uint64 seconds, double fraction), when the frame has a core:datetime),
     and "tx_weights" (c64vector) on frames whose weights override the global ones.
     Message port "pose": a dict {frame_index, pose, x, y, heading} whenever the pose changes.
+    Message port "weights": at start, a dict {"weights": c32vector} with the survey's global TX
+    weights (the form projection_canceller and the sounder take).
     The flowgraph ends after the last frame unless repeat.
 
     frame_types: "survey" (default), "rx_reference", "all", or a list of frame types.
@@ -142,6 +145,7 @@ class survey_source(gr.sync_block):
             self, name="survey_source", in_sig=None, out_sig=[(np.complex64, self._num_rx * self._num_sc)]
         )
         self.message_port_register_out(POSE_PORT)
+        self.message_port_register_out(WEIGHTS_PORT)
         self._repeat = bool(repeat)
         self._position = 0  # next entry of self._frames to play
         self._last_pose = None
@@ -162,6 +166,12 @@ class survey_source(gr.sync_block):
     def survey(self):
         """The Survey being played."""
         return self._survey
+
+    def start(self):
+        weights = [complex(w) for w in self._survey.tx_weights]
+        msg = pmt.dict_add(pmt.make_dict(), pmt.intern("weights"), pmt.init_c32vector(len(weights), weights))
+        self.message_port_pub(WEIGHTS_PORT, msg)
+        return gr.sync_block.start(self)
 
     def num_frames(self):
         """Number of frames played per pass."""

@@ -44,7 +44,8 @@ public:
      * plain beam toward main_lobe_rad that have exact zeros toward each far-field null
      * (corners) and, when null_receiver, are orthogonal to the strongest directions of the
      * exact near-field coupling to every RX element across the band — as many as reach the
-     * target depth (default -50 dB).
+     * target depth (default -45 dB, below what 2° rms phase error allows), and never so many
+     * that the main lobe loses more than 3 dB.
      * Throws std::invalid_argument for a null inside the main lobe (closer than
      * main_lobe_halfwidth_rad()), more nulls than the K-1 degrees of freedom, NaN angles.
      */
@@ -52,7 +53,7 @@ public:
                                    const std::vector<double>& null_angles_rad,
                                    bool null_receiver = true) const;
 
-    //! The receiver null depth design() aims for, dB (negative; default -50).
+    //! The receiver null depth design() aims for, dB (negative; default -45).
     void set_target_depth(double depth_db);
     double target_depth() const { return d_target_depth_db; }
 
@@ -99,7 +100,7 @@ private:
     Eigen::MatrixXcd d_H;       // coupling rows over RX elements and band samples
     Eigen::MatrixXcd d_coupling_dirs; // eigenvectors of HᴴH, strongest first
     double d_max_coupling;      // its largest eigenvalue
-    double d_target_depth_db = -50.0;
+    double d_target_depth_db = -45.0;
     double d_halfwidth_rad;
 };
 

@@ -26,7 +26,8 @@ namespace thrumapper {
  * Message port "paths" (in): a dict with "paths", a vector or list of dicts {"angle_deg",
  * "delay_s"} — jade_estimator's "paths" message works as it is — replaces the paths to
  * cancel; {"clear": #t} clears them. Message port "weights" (in): null_steering_weights'
- * message (a dict with "weights"), or a bare c32vector, sets the TX weights of the direct path.
+ * message (a dict with "weights"), or a bare c32vector, sets the TX weights of the direct path;
+ * a "tx_weights" tag (c32/c64vector) on a frame sets them for that frame only.
  * A malformed message is logged and counted (num_bad_messages()); changes take effect at the
  * next frame. Frames with NaN/Inf are logged, counted (num_skipped()) and dropped.
  */
