@@ -13,6 +13,8 @@ All three run in this process, on the same frames, on one core (BLAS threads pin
                It is too slow to run on the whole grid at every N; it runs on a slice of
                the angles and is scaled to the whole grid (its cost is linear in the points).
 
+It also times a full successive-cancellation update (up to 4 stages) against one stage.
+
 Usage: benchmarks/bench_jade.py [--seconds S] [--markdown]
 """
 import os
@@ -135,17 +137,36 @@ def main():
         plain(H, part)
         plain_rate = 1.0 / ((time.perf_counter() - t0) * NUM_ANGLES / 12)
         rows.append((N, L, core, numpy_sep, plain_rate))
+    # successive cancellation: a full update of 4 stages against the one-stage estimate, on a
+    # frame with a corridor wall, clutter and a hidden wall 30 dB down
+    radar = thrumapper.radar_description.make_uca_pair(subcarriers=128)
+    h = sum(g * np.asarray(thrumapper.space_time_manifold(radar, math.radians(a), d))
+            for a, d, g in [(243.4, 5.22e-9, 1.0), (120.0, 8e-9, 0.3), (30.0, 11e-9, 0.2),
+                            (262.0, 15.2e-9, 10 ** -1.5)])
+    h = (h + 1e-3 * (rng.standard_normal(h.size) + 1j * rng.standard_normal(h.size))).reshape(8, 128)
+    one = thrumapper.jade(radar, list(angles), list(delays), 0, 3)
+    four = thrumapper.jade(radar, list(angles), list(delays), 0, 3)
+    four.set_stages(4)
+    stage_rates = (rate(lambda: one.estimate(h), args.seconds), rate(lambda: four.estimate(h), args.seconds))
     head = ("N", "L", "core /s", "numpy separable /s", "plain grid /s", "core ÷ numpy sep.", "core ÷ plain")
     if args.markdown:
         print("| " + " | ".join(head) + " |")
         print("|" + "---|" * len(head))
         for N, L, c, s, p in rows:
             print(f"| {N} | {L} | {c:.0f} | {s:.0f} | {p:.3f} | {c / s:.1f}× | {c / p:.0f}× |")
+        print()
+        print("| N = 128, 4 paths | updates /s |")
+        print("|---|---|")
+        print(f"| one stage | {stage_rates[0]:.0f} |")
+        print(f"| successive cancellation, up to 4 stages | {stage_rates[1]:.0f} |")
     else:
         print(f"M = 8, grid {NUM_ANGLES} angles x {NUM_DELAYS} delays, one core")
         print("{:>4} {:>4} {:>10} {:>19} {:>14} {:>18} {:>13}".format(*head))
         for N, L, c, s, p in rows:
             print(f"{N:>4} {L:>4} {c:>10.0f} {s:>19.0f} {p:>14.3f} {c / s:>17.1f}x {c / p:>12.0f}x")
+        print(f"\nN = 128, 4 paths: one stage {stage_rates[0]:.0f} /s, "
+              f"successive cancellation up to 4 stages {stage_rates[1]:.0f} updates/s "
+              f"({stage_rates[0] / stage_rates[1]:.1f}x the time)")
 
 
 if __name__ == "__main__":

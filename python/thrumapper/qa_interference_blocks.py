@@ -172,5 +172,42 @@ class qa_interference_blocks(gr_unittest.TestCase):
             est.set_stages(0)
 
 
+class qa_cli_beam(gr_unittest.TestCase):
+    def run_cli(self, *args):
+        import subprocess
+        import sys
+        return subprocess.run([sys.executable, "-m", "gnuradio.thrumapper.cli_beam", *args],
+                              capture_output=True, text=True, timeout=120)
+
+    def test_design_json_and_png(self):
+        import json
+        import os
+        import tempfile
+        with tempfile.TemporaryDirectory() as tmp:
+            png = os.path.join(tmp, "beam.png")
+            out = self.run_cli("--main-lobe-deg", "300", "--null-deg", "200", "--json", "--png", png)
+            self.assertEqual(out.returncode, 0, out.stderr)
+            report = json.loads(out.stdout)
+            self.assertEqual(len(report["weights"]), 8)
+            self.assertLess(report["coupling_db"], -40.0)
+            self.assertGreater(report["main_lobe_gain_db"], 10 * math.log10(8) - 3.0)
+            # phase errors only make the null shallower, more so when larger
+            e = report["expected_coupling_db"]
+            self.assertLess(report["coupling_db"], e["1"])
+            self.assertLess(e["1"], e["2"])
+            self.assertLess(e["2"], e["5"])
+            self.assertGreater(os.path.getsize(png), 10000)
+
+    def test_bad_designs_get_one_clear_error(self):
+        for args, words in ((("--main-lobe-deg", "10"), "inside the main lobe"),
+                            (("--null-deg", "302"), "inside the main lobe"),
+                            (("--null-deg", "10", "--null-deg", "40", "--null-deg", "60", "--null-deg", "80",
+                              "--null-deg", "100", "--null-deg", "120", "--null-deg", "140"), "at most")):
+            out = self.run_cli(*args)
+            self.assertEqual(out.returncode, 2)
+            self.assertIn(words, out.stderr)
+            self.assertNotIn("Traceback", out.stderr)
+
+
 if __name__ == "__main__":
-    gr_unittest.run(qa_interference_blocks)
+    gr_unittest.main()
