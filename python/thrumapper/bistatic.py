@@ -1,0 +1,192 @@
+#
+# SPDX-License-Identifier: GPL-3.0-or-later
+#
+"""Bistatic geometry: from an echo's angle and delay to a wall point and orientation, and back.
+
+Conventions are FORMATS.md's: robot frame (+x forward, +y left), metres, seconds, radians;
+the angle of arrival θ is the bearing at the RX array centre, counter-clockwise from robot +x;
+the delay τ is the propagation time from the TX array centre to the RX array centre.
+
+A delay τ puts the reflection point on the ellipse whose foci are the two array centres and
+whose distance sum is c·τ; the bearing puts it on the ray from the RX centre. With D the
+vector from the TX centre to the RX centre, L = c·τ and u the unit bearing, the point
+P = R + r·u on the ray satisfies |P − T| = L − r, so
+
+    r = (L² − |D|²) / (2 (L + D·u)),
+
+which is positive and finite exactly when L > |D|: an echo must come later than the direct
+path. A specular reflector at P reflects T toward R (law of reflection), so its normal bisects
+the unit vectors from P toward T and toward R: that is the ellipse's normal, and the wall's
+face lies along the ellipse's tangent there. Each specular echo therefore gives a point and an
+orientation.
+"""
+
+import math
+
+import numpy as np
+
+SPEED_OF_LIGHT_M_S = 299792458.0
+
+
+class GeometryError(ValueError):
+    """An echo that no reflector can produce (for instance a delay below the direct path's)."""
+
+
+def _unit(v):
+    v = np.asarray(v, dtype=float)
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(n == 0.0, 1.0, n)
+
+
+def bearing_vector(angle_rad):
+    """Unit vectors [cos θ, sin θ], shape (..., 2)."""
+    a = np.asarray(angle_rad, dtype=float)
+    return np.stack((np.cos(a), np.sin(a)), axis=-1)
+
+
+def direct_delay_s(tx_centre_m, rx_centre_m):
+    """Delay of the direct TX-centre → RX-centre path, |T − R| / c."""
+    return float(np.hypot(*(np.asarray(rx_centre_m, float) - np.asarray(tx_centre_m, float)))) / SPEED_OF_LIGHT_M_S
+
+
+def reflection_range_m(aoa_rad, delay_s, tx_centre_m, rx_centre_m):
+    """Distance r from the RX centre, along the bearing, to the reflection point (...,).
+
+    Raises GeometryError when a delay is not finite or not longer than the direct path's.
+    """
+    tx = np.asarray(tx_centre_m, dtype=float)
+    rx = np.asarray(rx_centre_m, dtype=float)
+    d = rx - tx
+    tau = np.asarray(delay_s, dtype=float)
+    theta = np.asarray(aoa_rad, dtype=float)
+    if not (np.all(np.isfinite(tau)) and np.all(np.isfinite(theta))):
+        raise GeometryError("aoa_rad, delay_s: NaN or Inf")
+    path_m = SPEED_OF_LIGHT_M_S * tau
+    base_m = float(np.hypot(*d))
+    if np.any(path_m <= base_m):
+        worst = float(np.min(tau))
+        raise GeometryError(
+            f"delay_s: {worst * 1e9:.3f} ns is not longer than the direct path's {base_m / SPEED_OF_LIGHT_M_S * 1e9:.3f} ns; "
+            "no reflector gives such an echo")
+    u = bearing_vector(theta)
+    return (path_m**2 - base_m**2) / (2.0 * (path_m + u @ d))
+
+
+def reflection_point(aoa_rad, delay_s, tx_centre_m, rx_centre_m):
+    """The specular reflection point and the reflector's unit normal, robot frame.
+
+    Returns (point_m (..., 2), normal (..., 2)): the normal points from the wall toward the
+    radar (it bisects the directions from the point to the two array centres), so the wall's
+    face runs along (−n_y, n_x) through the point. Raises GeometryError on a delay that is not
+    longer than the direct path's, or on NaN/Inf.
+    """
+    tx = np.asarray(tx_centre_m, dtype=float)
+    rx = np.asarray(rx_centre_m, dtype=float)
+    r = reflection_range_m(aoa_rad, delay_s, tx, rx)
+    point = rx + r[..., None] * bearing_vector(aoa_rad)
+    normal = _unit(_unit(tx - point) + _unit(rx - point))
+    return point, normal
+
+
+def incidence_angle_rad(point_m, normal, tx_centre_m):
+    """Angle between the wall normal and the direction from the point to the TX centre."""
+    to_tx = _unit(np.asarray(tx_centre_m, float) - np.asarray(point_m, float))
+    return np.arccos(np.clip(np.sum(to_tx * np.asarray(normal, float), axis=-1), -1.0, 1.0))
+
+
+def mirror(points_m, face_point_m, normal):
+    """Mirror points in the line through face_point with unit normal (image method)."""
+    p = np.asarray(points_m, dtype=float)
+    n = _unit(normal)
+    q = np.asarray(face_point_m, dtype=float)
+    return p - 2.0 * np.sum((p - q) * n, axis=-1, keepdims=True) * n
+
+
+def specular_path(face_point_m, normal, tx_centre_m, rx_centre_m):
+    """The specular echo of an infinite flat wall (the line through face_point_m with this
+    normal), by the image method: (aoa_rad, delay_s, reflection point (2,)).
+
+    Raises GeometryError when the array centres are not both in front of the face.
+    """
+    tx = np.asarray(tx_centre_m, dtype=float)
+    rx = np.asarray(rx_centre_m, dtype=float)
+    n = _unit(normal)
+    q = np.asarray(face_point_m, dtype=float)
+    if not (np.dot(tx - q, n) > 0.0 and np.dot(rx - q, n) > 0.0):
+        raise GeometryError("specular_path: both array centres must be in front of the face (on the normal's side)")
+    image = mirror(tx, q, n)
+    v = image - rx
+    length_m = float(np.hypot(*v))
+    t = np.dot(q - rx, n) / np.dot(v, n)
+    point = rx + t * v
+    return math.atan2(v[1], v[0]) % (2.0 * math.pi), length_m / SPEED_OF_LIGHT_M_S, point
+
+
+def double_bounce_path(first_point_m, first_normal, second_point_m, second_normal, tx_centre_m, rx_centre_m):
+    """TX → wall 1 → wall 2 → RX by double imaging: (aoa_rad, delay_s, bounce points) or None
+    when no such specular path exists (a bounce point on the wrong side or behind a focus)."""
+    tx = np.asarray(tx_centre_m, dtype=float)
+    rx = np.asarray(rx_centre_m, dtype=float)
+    q1, n1 = np.asarray(first_point_m, float), _unit(first_normal)
+    q2, n2 = np.asarray(second_point_m, float), _unit(second_normal)
+    image1 = mirror(tx, q1, n1)
+    image2 = mirror(image1, q2, n2)
+    v = image2 - rx
+    denom2 = np.dot(v, n2)
+    if abs(denom2) < 1e-12:
+        return None
+    t2 = np.dot(q2 - rx, n2) / denom2
+    if not 0.0 < t2 < 1.0:
+        return None
+    p2 = rx + t2 * v
+    w = image1 - p2
+    denom1 = np.dot(w, n1)
+    if abs(denom1) < 1e-12:
+        return None
+    t1 = np.dot(q1 - p2, n1) / denom1
+    if not 0.0 < t1 < 1.0:
+        return None
+    p1 = p2 + t1 * w
+    # both reflections on the faces' front sides
+    if np.dot(tx - q1, n1) <= 0 or np.dot(p2 - q1, n1) <= 0 or np.dot(p1 - q2, n2) <= 0 or np.dot(rx - q2, n2) <= 0:
+        return None
+    length_m = float(np.hypot(*(tx - p1)) + np.hypot(*(p1 - p2)) + np.hypot(*(p2 - rx)))
+    return math.atan2(v[1], v[0]) % (2.0 * math.pi), length_m / SPEED_OF_LIGHT_M_S, (p1, p2)
+
+
+def robot_to_world(points_m, pose):
+    """Points (..., 2) from the robot frame of pose [x, y, heading] to the world frame."""
+    x, y, h = (float(v) for v in pose)
+    c, s = math.cos(h), math.sin(h)
+    p = np.asarray(points_m, dtype=float)
+    return np.stack((x + c * p[..., 0] - s * p[..., 1], y + s * p[..., 0] + c * p[..., 1]), axis=-1)
+
+
+def world_to_robot(points_m, pose):
+    """Points (..., 2) from the world frame to the robot frame of pose [x, y, heading]."""
+    x, y, h = (float(v) for v in pose)
+    c, s = math.cos(h), math.sin(h)
+    p = np.asarray(points_m, dtype=float) - np.array([x, y])
+    return np.stack((c * p[..., 0] + s * p[..., 1], -s * p[..., 0] + c * p[..., 1]), axis=-1)
+
+
+def rotate(vectors, angle_rad):
+    """Rotate direction vectors (..., 2) counter-clockwise by angle_rad."""
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    v = np.asarray(vectors, dtype=float)
+    return np.stack((c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]), axis=-1)
+
+
+def segments_cross(p0, p1, a, b):
+    """Whether segment p0→p1 crosses segment a→b (proper crossing), broadcasting over leading
+    dimensions: p0, p1 (..., 2) against a, b (..., 2)."""
+    p0, p1, a, b = (np.asarray(v, dtype=float) for v in (p0, p1, a, b))
+
+    def orient(o, u, w):
+        return (u[..., 0] - o[..., 0]) * (w[..., 1] - o[..., 1]) - (u[..., 1] - o[..., 1]) * (w[..., 0] - o[..., 0])
+
+    d1 = orient(a, b, p0)
+    d2 = orient(a, b, p1)
+    d3 = orient(p0, p1, a)
+    d4 = orient(p0, p1, b)
+    return (d1 * d2 < 0) & (d3 * d4 < 0)
