@@ -83,8 +83,12 @@ Eigen::VectorXcd direct_path_response(const radar_description& radar,
             const double d = (tx.row(k) - rx.row(m)).norm();
             const double tau = d / speed_of_light_m_s + system_delay_s;
             const cd wk(w[k].real(), w[k].imag());
-            for (int n = 0; n < N; n++)
-                h(m * N + n) += wk * std::polar(1.0 / d, -2.0 * M_PI * (radar.carrier_hz() + df[n]) * tau);
+            for (int n = 0; n < N; n++) {
+                // free space between isotropic elements: amplitude λ/(4πd), delay d/c
+                const double f = radar.carrier_hz() + df[n];
+                h(m * N + n) += wk * std::polar(speed_of_light_m_s / (4.0 * M_PI * f * d),
+                                                -2.0 * M_PI * f * tau);
+            }
         }
     return h;
 }

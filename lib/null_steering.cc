@@ -69,9 +69,11 @@ Eigen::MatrixXcd null_steering::coupling_rows() const
             const double d = (tx.row(k) - rx.row(m)).norm();
             if (!(d > 0))
                 throw std::invalid_argument("null_steering: a TX element sits on an RX element");
-            for (int n = 0; n < N; n++)
-                H(m * N + n, k) = std::polar(
-                    1.0 / d, -2 * M_PI * (d_radar->carrier_hz() + df[n]) * d / speed_of_light_m_s);
+            for (int n = 0; n < N; n++) {
+                const double f = d_radar->carrier_hz() + df[n];
+                H(m * N + n, k) = std::polar(speed_of_light_m_s / (4 * M_PI * f * d),
+                                             -2 * M_PI * f * d / speed_of_light_m_s);
+            }
         }
     return H;
 }

@@ -15,3 +15,5 @@ except ModuleNotFoundError:
 from . import scene, building_sim, evaluation
 from .survey import Survey, SurveyFormatError, read_survey, write_survey, group_frames_by_pose
 from .survey_blocks import survey_source, survey_sink
+from .building_channel import building_channel
+from .iq_recording import iq_sink, iq_source

@@ -53,7 +53,8 @@ THRUMAPPER_API Eigen::VectorXcd space_time_manifold(const radar_description& rad
 
 /*!
  * \brief Exact wideband near-field response of the direct TX→RX coupling, M×N element-major,
- * for the given TX weights and extra (system) delay: Σ_k w_k exp(-j2π (fc+Δf_n)(|t_k - r_m|/c + τ_sys)).
+ * for the given TX weights and extra (system) delay, free space between isotropic elements:
+ * Σ_k w_k λ_n/(4π d_km) exp(-j2π f_n (d_km/c + τ_sys)), f_n = fc + Δf_n, d_km = |t_k - r_m|.
  */
 THRUMAPPER_API Eigen::VectorXcd direct_path_response(const radar_description& radar,
                                                      const std::vector<gr_complex>& tx_weights,

@@ -21,7 +21,7 @@ namespace thrumapper {
  * Conventions: TX element k sends w_k·s. The far field toward bearing θ (CCW from robot +x,
  * seen from the TX centre) is Σ_k w_k exp(+j2πf p_k·u(θ)/c) = a(θ)ᵀw. The receiver is
  * near-field (0.7 m): its coupling to RX element m at frequency f is
- * Σ_k w_k exp(-j2πf d_km/c)/d_km, exact, over the whole band.
+ * Σ_k w_k λ/(4π d_km) exp(-j2πf d_km/c), exact, over the whole band.
  *
  * Weights are scaled to the total power of all-ones weights (‖w‖² = K). The coupling (null
  * depth) is the direct coupling power, summed over the RX elements and the subcarriers,

@@ -5,7 +5,7 @@
 /* BINDTOOL_GEN_AUTOMATIC(0) */
 /* BINDTOOL_USE_PYGCCXML(0) */
 /* BINDTOOL_HEADER_FILE(manifold.h) */
-/* BINDTOOL_HEADER_FILE_HASH(e886ac054d03b848ca7dd82fb3e938d6) */
+/* BINDTOOL_HEADER_FILE_HASH(650b624fbe94010d7eac924e9d6deabe) */
 
 #include <pybind11/complex.h>
 #include <pybind11/eigen.h>

@@ -5,7 +5,7 @@
 /* BINDTOOL_GEN_AUTOMATIC(0) */
 /* BINDTOOL_USE_PYGCCXML(0) */
 /* BINDTOOL_HEADER_FILE(null_steering.h) */
-/* BINDTOOL_HEADER_FILE_HASH(2edfee28169eec6e67428a717d6fc4b5) */
+/* BINDTOOL_HEADER_FILE_HASH(fc8e1d831cc8da554b561d8f942e6843) */
 
 #include <pybind11/complex.h>
 #include <pybind11/eigen.h>

@@ -17,6 +17,11 @@ void bind_jade(py::module& m);
 void bind_jade_estimator(py::module& m);
 void bind_null_steering(py::module& m);
 void bind_projection(py::module& m);
+void bind_ofdm_sounding(py::module& m);
+void bind_channel_calibration(py::module& m);
+void bind_ofdm_sounder(py::module& m);
+void bind_ofdm_channel_estimator(py::module& m);
+void bind_channel_calibrator(py::module& m);
 
 // import_array() returns NULL on newer Pythons, hence the wrapper
 void* init_numpy()
@@ -38,4 +43,9 @@ PYBIND11_MODULE(thrumapper_python, m)
     bind_jade_estimator(m);
     bind_null_steering(m);
     bind_projection(m);
+    bind_ofdm_sounding(m);
+    bind_channel_calibration(m);
+    bind_ofdm_sounder(m);
+    bind_ofdm_channel_estimator(m);
+    bind_channel_calibrator(m);
 }
