@@ -124,34 +124,47 @@ def specular_path(face_point_m, normal, tx_centre_m, rx_centre_m):
 
 def double_bounce_path(first_point_m, first_normal, second_point_m, second_normal, tx_centre_m, rx_centre_m):
     """TX → wall 1 → wall 2 → RX by double imaging: (aoa_rad, delay_s, bounce points) or None
-    when no such specular path exists (a bounce point on the wrong side or behind a focus)."""
-    tx = np.asarray(tx_centre_m, dtype=float)
-    rx = np.asarray(rx_centre_m, dtype=float)
-    q1, n1 = np.asarray(first_point_m, float), _unit(first_normal)
-    q2, n2 = np.asarray(second_point_m, float), _unit(second_normal)
-    image1 = mirror(tx, q1, n1)
-    image2 = mirror(image1, q2, n2)
-    v = image2 - rx
-    denom2 = np.dot(v, n2)
+    when no such specular path exists (a bounce point on the wrong side or behind a focus).
+
+    Plain float arithmetic: the fusion asks for it for every pair of walls at every pose."""
+    tx_x, tx_y = float(tx_centre_m[0]), float(tx_centre_m[1])
+    rx_x, rx_y = float(rx_centre_m[0]), float(rx_centre_m[1])
+    q1x, q1y = float(first_point_m[0]), float(first_point_m[1])
+    q2x, q2y = float(second_point_m[0]), float(second_point_m[1])
+    n1x, n1y = float(first_normal[0]), float(first_normal[1])
+    n2x, n2y = float(second_normal[0]), float(second_normal[1])
+    l1 = math.hypot(n1x, n1y)
+    l2 = math.hypot(n2x, n2y)
+    if l1 == 0.0 or l2 == 0.0:
+        return None
+    n1x, n1y, n2x, n2y = n1x / l1, n1y / l1, n2x / l2, n2y / l2
+    d = (tx_x - q1x) * n1x + (tx_y - q1y) * n1y
+    i1x, i1y = tx_x - 2.0 * d * n1x, tx_y - 2.0 * d * n1y  # TX mirrored in wall 1
+    d = (i1x - q2x) * n2x + (i1y - q2y) * n2y
+    i2x, i2y = i1x - 2.0 * d * n2x, i1y - 2.0 * d * n2y  # ... and in wall 2
+    vx, vy = i2x - rx_x, i2y - rx_y
+    denom2 = vx * n2x + vy * n2y
     if abs(denom2) < 1e-12:
         return None
-    t2 = np.dot(q2 - rx, n2) / denom2
+    t2 = ((q2x - rx_x) * n2x + (q2y - rx_y) * n2y) / denom2
     if not 0.0 < t2 < 1.0:
         return None
-    p2 = rx + t2 * v
-    w = image1 - p2
-    denom1 = np.dot(w, n1)
+    p2x, p2y = rx_x + t2 * vx, rx_y + t2 * vy
+    wx, wy = i1x - p2x, i1y - p2y
+    denom1 = wx * n1x + wy * n1y
     if abs(denom1) < 1e-12:
         return None
-    t1 = np.dot(q1 - p2, n1) / denom1
+    t1 = ((q1x - p2x) * n1x + (q1y - p2y) * n1y) / denom1
     if not 0.0 < t1 < 1.0:
         return None
-    p1 = p2 + t1 * w
+    p1x, p1y = p2x + t1 * wx, p2y + t1 * wy
     # both reflections on the faces' front sides
-    if np.dot(tx - q1, n1) <= 0 or np.dot(p2 - q1, n1) <= 0 or np.dot(p1 - q2, n2) <= 0 or np.dot(rx - q2, n2) <= 0:
+    if ((tx_x - q1x) * n1x + (tx_y - q1y) * n1y <= 0 or (p2x - q1x) * n1x + (p2y - q1y) * n1y <= 0
+            or (p1x - q2x) * n2x + (p1y - q2y) * n2y <= 0 or (rx_x - q2x) * n2x + (rx_y - q2y) * n2y <= 0):
         return None
-    length_m = float(np.hypot(*(tx - p1)) + np.hypot(*(p1 - p2)) + np.hypot(*(p2 - rx)))
-    return math.atan2(v[1], v[0]) % (2.0 * math.pi), length_m / SPEED_OF_LIGHT_M_S, (p1, p2)
+    length_m = math.hypot(tx_x - p1x, tx_y - p1y) + math.hypot(p1x - p2x, p1y - p2y) + math.hypot(p2x - rx_x, p2y - rx_y)
+    return (math.atan2(vy, vx) % (2.0 * math.pi), length_m / SPEED_OF_LIGHT_M_S,
+            (np.array([p1x, p1y]), np.array([p2x, p2y])))
 
 
 def robot_to_world(points_m, pose):

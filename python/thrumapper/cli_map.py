@@ -1,0 +1,194 @@
+#
+# SPDX-License-Identifier: GPL-3.0-or-later
+#
+"""thrumapper-map: a CSI survey in, a floor plan out (GeoJSON, PNG, ROS map)."""
+
+import argparse
+import json
+import math
+import sys
+import time
+
+EPILOG = """\
+the chain (docs/mapping.md):
+  1. RX chains calibrated from the survey's rx_reference frames (relative gain, phase and
+     delay per channel, the DC offset), when it has them;
+  2. the system delay: --system-delay-s, else the survey's thrumapper:system_delay_s, else
+     measured on the direct TX->RX path (impossible when the TX null hides it: then give it);
+  3. JADE on every pose group (thrumapper-jade's code; successive cancellation with
+     --stages when the estimator has it);
+  4. wall fusion: reflection points and orientations, slab correction with the wall model
+     (the survey's thrumapper:wall_model, else --material), corners, ghosts, walls, classes,
+     pose correction. The GNU Radio block wall_fusion runs the same code.
+
+outputs:
+  MAP.geojson  FORMATS.md's map: walls (class, confidence), detections, corners, trajectory
+  MAP.png      the map with the trajectory and the detections (matplotlib)
+  PREFIX.pgm, PREFIX.yaml   a ROS map_server occupancy grid (--ros-resolution m/pixel)
+
+examples:
+  thrumapper-sim examples/scenes/paper_4_4_corridor_corner.yaml --out out/
+  thrumapper-map out/paper_4_4_corridor_corner.sigmf-meta --geojson out/map.geojson --png out/map.png
+  thrumapper-eval out/map.geojson out/paper_4_4_corridor_corner.truth.geojson
+  thrumapper-map office.sigmf-meta --geojson office.geojson --system-delay-s 31e-9 --ros-map office
+
+exit status: 0 done, 2 bad input (the message names it).
+"""
+
+
+def build_parser():
+    p = argparse.ArgumentParser(
+        prog="thrumapper-map",
+        description="Map the walls of a building from a CSI survey (SigMF, thrumapper:kind \"csi\"): "
+                    "calibration, JADE and wall fusion, the same code as the GNU Radio flowgraph.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("survey", help="the survey: NAME.sigmf-meta (or NAME, or NAME.sigmf-data)")
+    p.add_argument("--geojson", required=True, metavar="MAP.geojson", help="write the map here (FORMATS.md)")
+    p.add_argument("--png", metavar="MAP.png", help="write a picture of the map")
+    p.add_argument("--ros-map", metavar="PREFIX", help="write PREFIX.pgm and PREFIX.yaml (ROS map_server)")
+    p.add_argument("--ros-resolution", type=float, default=0.05, metavar="M", help="ROS map pixel size (default 0.05 m)")
+    p.add_argument("--truth", metavar="TRUTH.geojson", help="draw this map faintly under the PNG (e.g. thrumapper-sim's truth)")
+    p.add_argument("--system-delay-s", type=float, metavar="S", help="the system delay, overriding the survey's")
+    p.add_argument("--material", default=None, metavar="NAME",
+                   help="wall material for the slab correction when the survey has no thrumapper:wall_model: "
+                        "plasterboard (default), stud_wall, brick, concrete, glass, wood, metal, or none")
+    p.add_argument("--paths", type=int, default=8, metavar="K", help="most echoes JADE reports per pose (default 8)")
+    p.add_argument("--stages", type=int, default=1, metavar="N",
+                   help="successive-cancellation stages of JADE (default 1: on the example scenes more stages "
+                        "found more echoes but more spurious ones too, docs/mapping.md)")
+    p.add_argument("--max-delay-s", type=float, default=60e-9, metavar="S", help="JADE's delay grid end (default 60e-9)")
+    p.add_argument("--angles", type=int, default=360, help="JADE's angle grid size (default 360)")
+    p.add_argument("--delays", type=int, default=240, help="JADE's delay grid size (default 240)")
+    p.add_argument("--no-pose-correction", action="store_true", help="keep the odometry's poses")
+    p.add_argument("--detections", choices=("fused", "measured"), default="fused",
+                   help="detections written as the fused reflection points on the walls (default) or as "
+                        "the measured echoes (the other set is written too, as kind \"echoes\")")
+    p.add_argument("--max-range-m", type=float, default=8.0, metavar="M", help="ignore echoes farther (default 8 m)")
+    p.add_argument("--min-wall-poses", type=int, default=5, metavar="N",
+                   help="poses that must see a wall before it is mapped (default 5; fewer when the survey has fewer)")
+    p.add_argument("--stats", metavar="STATS.json", help="write the counts and timings as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def jade_settings(paths=8, stages=1, max_delay_s=60e-9, angles=360, delays=240):
+    """JadeSettings for mapping; `stages` is set when the estimator has successive cancellation."""
+    from .jade_pipeline import JadeSettings
+
+    settings = JadeSettings(num_angles=angles, num_delays=delays, delay_max_s=max_delay_s, max_paths=paths)
+    if "stages" in getattr(JadeSettings, "__dataclass_fields__", {}):
+        settings.stages = stages
+    elif stages != 1:
+        raise ValueError("--stages: this JADE has no successive cancellation (JadeSettings has no 'stages')")
+    return settings
+
+
+def map_survey(survey, fusion_settings=None, settings=None, system_delay_s=None, progress=None, timings=None):
+    """The whole chain on a read survey: RX calibration, JADE, wall fusion. Returns
+    (FusedMap, info dict). The wall model comes from the survey when it has one, overriding
+    fusion_settings.material."""
+    from . import jade_pipeline, rx_calibration
+    from .wall_fusion import FusionSettings, RadarGeometry, WallFusion
+
+    timings = {} if timings is None else timings
+    info = {}
+    started = time.perf_counter()
+    calibration = rx_calibration.calibrate_survey(survey)
+    timings["calibration_s"] = time.perf_counter() - started
+    if calibration is not None:
+        info["rx_calibration"] = calibration.summary()
+    work = rx_calibration.calibrated_survey(survey, calibration)
+    fusion_settings = fusion_settings or FusionSettings()
+    if survey.wall_model is not None:
+        fusion_settings.material = dict(survey.wall_model)
+        info["wall_model"] = "survey thrumapper:wall_model"
+    fusion = WallFusion(RadarGeometry.from_survey(survey), fusion_settings)
+    settings = settings or jade_settings()
+    started = time.perf_counter()
+    if system_delay_s is None and survey.system_delay_s is None:
+        system_delay_s = jade_pipeline.estimate_system_delay(work, jade_pipeline.group_frames_by_pose(work))
+        info["system_delay"] = "measured on the direct path"
+    info["system_delay_s"] = system_delay_s if system_delay_s is not None else survey.system_delay_s
+    timings["system_delay_s"] = time.perf_counter() - started
+    started = time.perf_counter()
+    groups = 0
+    for result in jade_pipeline.run_survey(work, settings, system_delay_s, progress):
+        fusion.add(result["pose"], result["paths"], result["frames"][0])
+        groups += 1
+    timings["jade_s"] = time.perf_counter() - started
+    if groups == 0:
+        raise ValueError("survey: no survey frames (only rx_reference frames, or none)")
+    started = time.perf_counter()
+    fused = fusion.build_map()
+    timings["fusion_s"] = time.perf_counter() - started
+    fused.stats["timings"] = dict(timings)
+    fused.stats.update({k: v for k, v in info.items() if isinstance(v, (str, int, float))})
+    return fused, info
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    from . import ros_map
+    from .survey import SurveyFormatError, read_survey
+    from .wall_fusion import FusionSettings, _jsonable, plot_map
+
+    def fail(message):
+        print(f"thrumapper-map: {message}", file=sys.stderr)
+        return 2
+
+    if args.system_delay_s is not None and not (math.isfinite(args.system_delay_s) and args.system_delay_s >= 0):
+        return fail(f"--system-delay-s: expected a delay >= 0, got {args.system_delay_s}")
+    if not (args.ros_resolution > 0):
+        return fail(f"--ros-resolution: expected > 0, got {args.ros_resolution}")
+    try:
+        survey = read_survey(args.survey)
+    except (SurveyFormatError, OSError) as err:
+        return fail(str(err))
+    material = args.material if args.material is not None else "plasterboard"
+    if material == "none":
+        material = None
+    try:
+        fusion_settings = FusionSettings(material=material, correct_poses=not args.no_pose_correction,
+                                         max_range_m=args.max_range_m, min_wall_poses=args.min_wall_poses)
+        fusion_settings.check()
+        settings = jade_settings(args.paths, args.stages, args.max_delay_s, args.angles, args.delays)
+    except ValueError as err:
+        return fail(str(err))
+    progress = None
+    if not args.quiet:
+        from tqdm import tqdm
+
+        def progress(groups):
+            return tqdm(groups, desc="JADE", unit="pose", file=sys.stderr)
+    total = time.perf_counter()
+    try:
+        if not args.quiet:
+            print("thrumapper-map: calibrating, estimating, fusing ...", file=sys.stderr)
+        fused, info = map_survey(survey, fusion_settings, settings, args.system_delay_s, progress)
+    except ValueError as err:
+        return fail(str(err))
+    fused.write_geojson(args.geojson, fused_detections=args.detections == "fused")
+    written = [args.geojson]
+    if args.png:
+        plot_map(fused, args.png, truth=args.truth)
+        written.append(args.png)
+    if args.ros_map:
+        written.extend(ros_map.write_ros_map(fused, args.ros_map, args.ros_resolution))
+    elapsed = time.perf_counter() - total
+    fused.stats["timings"]["total_s"] = elapsed
+    if args.stats:
+        with open(args.stats, "w", encoding="utf-8") as handle:
+            json.dump(_jsonable(fused.stats), handle, indent=1)
+        written.append(args.stats)
+    st = fused.stats
+    print(f"thrumapper-map: {st['poses']} poses, {st['echoes']} echoes -> {st['walls']} walls, "
+          f"{st['corners']} corners ({st['ghosts']} ghost echoes, {st['skipped_early']} early, "
+          f"{st['skipped_nonfinite']} non-finite skipped) in {elapsed:.1f} s "
+          f"({elapsed / max(st['poses'], 1):.3f} s/pose)", file=sys.stderr)
+    for path in written:
+        print(path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

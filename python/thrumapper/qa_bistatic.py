@@ -1,0 +1,161 @@
+#!/usr/bin/env python3
+#
+# SPDX-License-Identifier: GPL-3.0-or-later
+#
+"""Bistatic geometry and the slab echo model, against closed forms and the simulator."""
+
+import math
+
+import numpy as np
+from gnuradio import gr_unittest
+
+from gnuradio.thrumapper import bistatic, building_sim, echo_model, scene
+
+C = bistatic.SPEED_OF_LIGHT_M_S
+TX = np.array([-0.35, 0.0])
+RX = np.array([0.35, 0.0])
+
+
+def metal_scene(segment, poses_deg=((0.0, 0.0, 0.0),), physics=None, **extra):
+    data = {
+        "name": "t", "seed": 5,
+        "radar": {"elements": 8, "radius_m": 0.08, "baseline_m": 0.7, "carrier_hz": 2.44e9,
+                  "bandwidth_hz": 120e6, "subcarriers": 64},
+        "walls": [{"segment": s, "material": "metal"} for s in segment],
+        "trajectory": {"poses_deg": [list(p) for p in poses_deg]},
+        "frames_per_pose": 1, "noise": "none",
+        "physics": physics or {"direct": False, "diffuse": False, "edges": False, "clutter": False},
+    }
+    data.update(extra)
+    return scene.load_scene(data)
+
+
+class qa_bistatic(gr_unittest.TestCase):
+    def test_known_wall(self):
+        """The paper's §4.2 wall, face 0.7 m to the right: 2·sqrt(0.7² + 0.35²)/c and the
+        bearing of the midpoint from the RX give the point (0, -0.7) and a wall along x."""
+        delay_s = 2.0 * math.hypot(0.7, 0.35) / C
+        aoa_rad = math.atan2(-0.7, -0.35)
+        point, normal = bistatic.reflection_point(aoa_rad, delay_s, TX, RX)
+        self.assertLess(np.hypot(*(point - [0.0, -0.7])), 1e-6)
+        self.assertLess(abs(math.atan2(normal[1], normal[0]) - math.pi / 2), 1e-6)
+        self.assertAlmostEqual(math.degrees(aoa_rad) % 360, 243.4349, places=3)
+
+    def test_skewed_wall_against_the_simulator(self):
+        """A metal wall skewed 15° from the trajectory, its face traced by the simulator's image
+        method between the array centres: the echo's (θ, τ) give back the simulator's
+        reflection point to 1 mm and the wall's orientation to 1 mm over a metre."""
+        angle = math.radians(15.0)
+        direction = np.array([math.cos(angle), math.sin(angle)])
+        centre = np.array([0.4, -1.6])
+        sc = metal_scene([[list(centre - 4 * direction), list(centre + 4 * direction)]],
+                         poses_deg=((0.2, 0.1, 7.0),))
+        pose = sc.poses[0]
+        truth = [t for t in building_sim.path_truth(sc, pose) if t["kind"] == "wall"]
+        self.assertEqual(len(truth), 1)
+        t = truth[0]
+        point_r, normal_r = bistatic.reflection_point(math.radians(t["aoa_deg"]), t["delay_s"], TX, RX)
+        point_w = bistatic.robot_to_world(point_r, pose)
+        self.assertLess(np.hypot(*(point_w - np.asarray(t["points_m"][0]))), 1e-3)
+        normal_w = bistatic.rotate(normal_r, pose[2])
+        wall_normal = np.array([-direction[1], direction[0]])  # toward the robot (+y side)
+        self.assertLess(math.acos(min(1.0, abs(float(normal_w @ wall_normal)))), 1e-3)
+        # the face is the centre line moved toward the robot by half the thickness
+        face_offset = (point_w - centre) @ wall_normal
+        self.assertAlmostEqual(face_offset, sc.walls[0].thickness_m / 2, delta=1e-3)
+
+    def test_round_trip_many_walls(self):
+        """specular_path (image method) and reflection_point (ellipse ∩ ray) invert each other
+        for walls on every side at every orientation that faces both arrays."""
+        rng = np.random.default_rng(11)
+        done = 0
+        for _ in range(400):
+            phi = rng.uniform(-math.pi, math.pi)
+            normal = np.array([math.cos(phi), math.sin(phi)])
+            distance = rng.uniform(0.3, 8.0)
+            face = -normal * distance  # the wall's normal points back to the origin
+            try:
+                aoa, delay, point = bistatic.specular_path(face, normal, TX, RX)
+            except bistatic.GeometryError:
+                continue
+            p, n = bistatic.reflection_point(aoa, delay, TX, RX)
+            self.assertLess(np.hypot(*(p - point)), 1e-9)
+            self.assertLess(np.hypot(*(n - normal)), 1e-9)
+            done += 1
+        self.assertGreater(done, 300)
+
+    def test_impossible_echoes(self):
+        direct_s = bistatic.direct_delay_s(TX, RX)
+        self.assertAlmostEqual(direct_s, 0.7 / C, delta=1e-18)
+        with self.assertRaisesRegex(bistatic.GeometryError, "not longer than the direct path"):
+            bistatic.reflection_point(math.radians(270), 0.9 * direct_s, TX, RX)
+        with self.assertRaisesRegex(bistatic.GeometryError, "not longer than the direct path"):
+            bistatic.reflection_point(math.radians(270), direct_s, TX, RX)
+        with self.assertRaisesRegex(bistatic.GeometryError, "NaN"):
+            bistatic.reflection_point(float("nan"), 5e-9, TX, RX)
+        with self.assertRaises(bistatic.GeometryError):
+            bistatic.specular_path([0.0, 0.0], [0.0, 1.0], [-0.35, 1.0], [0.35, -1.0])  # arrays on both sides
+
+    def test_double_bounce_against_the_simulator(self):
+        """A metal corridor: the simulator's second-order path and the double imaging agree."""
+        sc = metal_scene([[[-6, -1.0], [6, -1.0]], [[-6, 1.3], [6, 1.3]]])
+        doubles = [t for t in building_sim.path_truth(sc, sc.poses[0]) if t["kind"] == "double"]
+        self.assertEqual(len(doubles), 2)
+        south = (np.array([0.0, -1.0 + 0.001]), np.array([0.0, 1.0]))  # faces: metal is 2 mm thick
+        north = (np.array([0.0, 1.3 - 0.001]), np.array([0.0, -1.0]))
+        predicted = [bistatic.double_bounce_path(*south, *north, TX, RX), bistatic.double_bounce_path(*north, *south, TX, RX)]
+        for p in predicted:
+            self.assertIsNotNone(p)
+            match = min(doubles, key=lambda t: abs(t["delay_s"] - p[1]) + abs(math.radians(t["aoa_deg"]) - p[0]))
+            self.assertAlmostEqual(match["delay_s"], p[1], delta=1e-14)
+            self.assertAlmostEqual(match["aoa_deg"], math.degrees(p[0]), delta=1e-6)
+
+    def test_echo_model_matches_the_simulator(self):
+        """echo_csi (image method per element pair, slab Γ at each pair's incidence, TX weights)
+        is the simulator's channel for a lone slab wall: an independent implementation of the
+        same physics (reflections only, no impairments, no noise)."""
+        data_walls = [{"segment": [[-8, -1.2], [8, -1.2]], "material": "plasterboard"}]
+        sc = scene.load_scene({
+            "name": "t", "seed": 5,
+            "radar": {"elements": 8, "radius_m": 0.08, "baseline_m": 0.7, "carrier_hz": 2.44e9,
+                      "bandwidth_hz": 120e6, "subcarriers": 64},
+            "walls": data_walls, "trajectory": {"poses_deg": [[0, 0, 0]]}, "frames_per_pose": 1, "noise": "none",
+            "tx_weights": {"mode": "null_steer", "main_lobe_deg": 270},
+            "physics": {"direct": False, "diffuse": False, "edges": False, "clutter": False, "second_order": False}})
+        weights = building_sim.scene_tx_weights(sc)
+        h_sim = building_sim.channel_at_pose(sc, sc.poses[0], tx_weights=weights)
+        model = echo_model.EchoModel(sc.radar.tx_elements_m, sc.radar.rx_elements_m, weights, sc.radar.carrier_hz,
+                                     sc.radar.subcarrier_offsets_hz)
+        face = np.array([0.0, -1.2 + 0.075])
+        h_model = model.echo_csi(face, [0.0, 1.0], scene.MATERIAL_PRESETS["plasterboard"])
+        error = np.linalg.norm(h_model - h_sim) / np.linalg.norm(h_sim)
+        self.assertLess(error, 1e-4)
+
+    def test_slab_shift_physics(self):
+        """A metal wall's echo has one face: far from the radar its apparent position is the
+        geometric one. A plasterboard slab's is shifted, within its two faces' delay span; the
+        insertion delay of one crossing is near d(√εr − 1)/c (0.33 ns for 15 cm)."""
+        tx_m = scene.uca_positions(8, 0.08, 0.0, -0.35, 0.0)
+        rx_m = scene.uca_positions(8, 0.08, 0.0, 0.35, 0.0)
+        offsets = scene.uniform_subcarriers(64, 120e6)
+        model = echo_model.EchoModel(tx_m, rx_m, np.ones(8), 2.44e9, offsets)
+        d_theta, d_tau = model.shift([0.0, -2.2], [0.0, 1.0], scene.MATERIAL_PRESETS["metal"])
+        self.assertLess(abs(d_tau), 0.03e-9)
+        self.assertLess(abs(math.degrees(d_theta)), 0.2)
+        plaster = scene.MATERIAL_PRESETS["plasterboard"]
+        _, d_tau = model.shift([0.0, -2.2], [0.0, 1.0], plaster)
+        span = model.echo_span_s(plaster)
+        self.assertAlmostEqual(span, 2 * 0.15 * math.sqrt(2.73) / C, delta=1e-15)
+        self.assertLessEqual(abs(d_tau), span)
+        self.assertGreater(abs(d_tau), 0.05e-9)
+        t_s = echo_model.transmission_delay_s(plaster, 0.0, 2.44e9)
+        self.assertAlmostEqual(t_s, 0.15 * (math.sqrt(2.73) - 1) / C, delta=0.08e-9)
+        # a wall model with only the real part gets the nearest preset's loss
+        material = echo_model.material_from({"relative_permittivity": 2.73, "thickness_m": 0.15})
+        self.assertAlmostEqual(material.layers[0][0].imag, plaster.layers[0][0].imag, delta=1e-9)
+        with self.assertRaisesRegex(ValueError, "unknown preset"):
+            echo_model.material_from("plaster")
+
+
+if __name__ == "__main__":
+    gr_unittest.run(qa_bistatic)

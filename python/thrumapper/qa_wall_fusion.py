@@ -1,0 +1,394 @@
+#!/usr/bin/env python3
+#
+# SPDX-License-Identifier: GPL-3.0-or-later
+#
+"""Wall fusion on echoes computed from geometry (exact angles and delays of known walls,
+corners, clutter and multipath ghosts), the block with messages, and bad input."""
+
+import json
+import math
+import time
+
+import numpy as np
+import pmt
+from gnuradio import blocks, gr, gr_unittest
+
+from gnuradio.thrumapper import bistatic, evaluation
+from gnuradio.thrumapper.survey_blocks import pose_message
+from gnuradio.thrumapper.wall_fusion import (FusionError, FusionSettings, RadarGeometry, WallFusion, map_to_pmt,
+                                             wall_fusion)
+
+C = bistatic.SPEED_OF_LIGHT_M_S
+RADAR = RadarGeometry.uca_pair(subcarriers=64)
+TX, RX = RADAR.tx_centre_m, RADAR.rx_centre_m
+
+
+def wall_echoes(pose, walls, points=(), ghosts=False, max_range_m=8.0):
+    """Exact echoes at a pose: specular reflections of the wall segments (world [p0, p1]) whose
+    specular point lies on the segment, point scatterers, and (ghosts) the double bounces
+    between the first two walls. Power falls by 10 dB per wall a leg crosses (a hidden wall
+    comes back about 20 dB below the one in front, as in the paper)."""
+    out = []
+    faces = []
+    for p0, p1 in walls:
+        p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
+        d = (p1 - p0) / np.hypot(*(p1 - p0))
+        n = np.array([-d[1], d[0]])
+        if (np.asarray(pose[:2]) - p0) @ n < 0:
+            n = -n
+        faces.append((p0, p1, n))
+
+    def crossings(a, b, skip):
+        count = 0
+        for k, (q0, q1, _) in enumerate(faces):
+            if k != skip and bistatic.segments_cross(a, b, q0, q1):
+                count += 1
+        return count
+
+    tx_w = bistatic.robot_to_world(TX, pose)
+    rx_w = bistatic.robot_to_world(RX, pose)
+    for k, (p0, p1, n) in enumerate(faces):
+        q_r = bistatic.world_to_robot(p0, pose)
+        n_r = bistatic.rotate(n, -pose[2])
+        try:
+            aoa, delay, point_r = bistatic.specular_path(q_r, n_r, TX, RX)
+        except bistatic.GeometryError:
+            continue
+        point = bistatic.robot_to_world(point_r, pose)
+        t = (point - p0) @ (p1 - p0) / ((p1 - p0) @ (p1 - p0))
+        if not 0.0 < t < 1.0 or np.hypot(*(point - pose[:2])) > max_range_m:
+            continue
+        crossed = crossings(tx_w, point, k) + crossings(point, rx_w, k)
+        out.append({"aoa_deg": math.degrees(aoa), "delay_s": delay, "power": 1e-5 / (C * delay) ** 2 * 0.1 ** crossed})
+    for p in points:
+        p_r = bistatic.world_to_robot(p, pose)
+        delay = (np.hypot(*(p_r - TX)) + np.hypot(*(p_r - RX))) / C
+        aoa = math.atan2(*(p_r - RX)[::-1])
+        out.append({"aoa_deg": math.degrees(aoa) % 360, "delay_s": delay, "power": 3e-6 / (C * delay) ** 2})
+    if ghosts and len(faces) >= 2:
+        for a, b in ((0, 1), (1, 0)):
+            fa, fb = faces[a], faces[b]
+            path = bistatic.double_bounce_path(bistatic.world_to_robot(fa[0], pose), bistatic.rotate(fa[2], -pose[2]),
+                                               bistatic.world_to_robot(fb[0], pose), bistatic.rotate(fb[2], -pose[2]),
+                                               TX, RX)
+            if path is not None:
+                out.append({"aoa_deg": math.degrees(path[0]), "delay_s": path[1], "power": 1e-6 / (C * path[1]) ** 2})
+    return out
+
+
+def straight_poses(x0, x1, step=0.2, y=0.0):
+    xs = np.arange(x0, x1 + 1e-9, step)
+    return np.column_stack((xs, np.full_like(xs, y), np.zeros_like(xs)))
+
+
+def exact_settings(**changes):
+    return FusionSettings(material=None, **changes)  # exact echoes have no slab shift
+
+
+def wall_near(fused, y, cls=None):
+    candidates = [w for w in fused.walls if cls is None or w.cls == cls]
+    return min(candidates, key=lambda w: abs(0.5 * (w.start_m[1] + w.end_m[1]) - y))
+
+
+class qa_wall_fusion(gr_unittest.TestCase):
+    # -- the library on exact echoes ---------------------------------------------------------
+    def test_corridor_with_hidden_wall_clutter_and_ghosts(self):
+        """Two corridor walls, a hidden wall behind the south one, a desk between them, the
+        corridor's double bounces: three walls at their faces to 1 mm with their classes, the
+        desk as a point landmark, the ghosts dropped, no false wall."""
+        walls = [([-2.0, -1.0], [12.0, -1.0]), ([-2.0, 1.3], [12.0, 1.3]), ([0.0, -3.0], [10.0, -3.0])]
+        desk = np.array([4.0, -2.0])
+        fusion = WallFusion(RADAR, exact_settings(correct_poses=False))
+        for pose in straight_poses(0.0, 8.0):
+            fusion.add(pose, wall_echoes(pose, walls, points=[desk], ghosts=True))
+        fused = fusion.build_map()
+        self.assertEqual(len(fused.walls), 3, [(w.start_m, w.end_m) for w in fused.walls])
+        for y, cls in ((-1.0, "line_of_sight"), (1.3, "line_of_sight"), (-3.0, "hidden")):
+            w = wall_near(fused, y)
+            self.assertEqual(w.cls, cls)
+            for end in (w.start_m, w.end_m):
+                self.assertAlmostEqual(end[1], y, delta=1e-3)
+            # the evidence spans the specular points x = 0 .. 8, plus half a Fresnel zone
+            lo, hi = sorted((w.start_m[0], w.end_m[0]))
+            self.assertTrue(-0.6 < lo < 0.0 and 8.0 < hi < 8.6, (lo, hi))
+        self.assertGreater(fused.stats["ghosts"], 0)
+        landmarks = [c.position_m for c in fused.corners] + [p for p, _ in fused.scatterers]
+        self.assertTrue(any(np.hypot(*(p - desk)) < 0.05 for p in landmarks), landmarks)
+        # scored against the truth: detections on the faces, no false wall
+        truth = {"type": "FeatureCollection", "thrumapper:crs": "local-metres", "features": [
+            {"type": "Feature", "geometry": {"type": "LineString", "coordinates": [list(a), list(b)]},
+             "properties": {"kind": "wall", "class": c, "confidence": 1.0}}
+            for (a, b), c in zip(walls, ("line_of_sight", "line_of_sight", "hidden"))]}
+        scores = evaluation.score_map(fused.to_geojson(), truth)
+        for cls in ("line_of_sight", "hidden"):
+            self.assertLess(scores["classes"][cls]["detections"]["rms_m"], 1e-3)
+        self.assertEqual(scores["false_wall_length_m"], 0.0)
+
+    def test_skewed_wall(self):
+        """A wall skewed 15° from the trajectory: its orientation from the ellipse tangents and
+        the fit agree with the geometry to 1 mm over a metre."""
+        angle = math.radians(-15.0)  # receding to the right: 0.8 m away at x = -1, 2.7 m at x = 6
+        d = np.array([math.cos(angle), math.sin(angle)])
+        start = np.array([-1.0, -0.8])
+        walls = [(start, start + 9.0 * d)]
+        fusion = WallFusion(RADAR, exact_settings(correct_poses=False))
+        for pose in straight_poses(0.0, 6.0):
+            fusion.add(pose, wall_echoes(pose, walls))
+        fused = fusion.build_map()
+        self.assertEqual(len(fused.walls), 1)
+        w = fused.walls[0]
+        direction = (w.end_m - w.start_m) / w.length_m
+        self.assertLess(math.acos(min(1.0, abs(float(direction @ d)))), 1e-3)
+        n = np.array([-d[1], d[0]])
+        for end in (w.start_m, w.end_m):
+            self.assertLess(abs((end - start) @ n), 1e-3)
+
+    def test_pose_correction_with_drifting_odometry(self):
+        """20 m of corridor with odometry 1 % long and drifting 0.5° per metre: the echoes come
+        from the true poses, the odometry reports drifted ones. The corridor walls, the end
+        walls and the door frames bring the trajectory back to a few centimetres."""
+        true = straight_poses(0.0, 20.0)
+        walls = [([-3.0, -1.0], [23.0, -1.0]), ([-3.0, 1.0], [23.0, 1.0]),
+                 ([-3.0, -1.0], [-3.0, 1.0]), ([23.0, -1.0], [23.0, 1.0])]
+        frames = [np.array([x, y]) for x in range(2, 20, 4) for y in (-1.0, 1.0)]
+        reported = [true[0].copy()]
+        for i in range(1, len(true)):
+            step = 0.2 * 1.01
+            heading = reported[-1][2] + math.radians(0.5) * 0.2
+            reported.append(np.array([reported[-1][0] + step * math.cos(reported[-1][2]),
+                                      reported[-1][1] + step * math.sin(reported[-1][2]), heading]))
+        reported = np.array(reported)
+        drift_rms = float(np.sqrt(np.mean(np.sum((reported[:, :2] - true[:, :2]) ** 2, axis=1))))
+        self.assertGreater(drift_rms, 0.5)
+        fusion = WallFusion(RADAR, exact_settings())
+        for pose_true, pose_reported in zip(true, reported):
+            fusion.add(pose_reported, wall_echoes(pose_true, walls, points=frames))
+        fused = fusion.build_map()
+        rms = float(np.sqrt(np.mean(np.sum((fused.trajectory[:, :2] - true[:, :2]) ** 2, axis=1))))
+        self.assertLess(rms, 0.05, f"trajectory RMS {rms:.3f} m (odometry {drift_rms:.2f} m)")
+        self.assertTrue(fused.stats["poses_corrected"])
+        south = wall_near(fused, -1.0, "line_of_sight")
+        self.assertLess(abs(0.5 * (south.start_m[1] + south.end_m[1]) + 1.0), 0.05)
+
+    def test_corner_is_a_landmark_not_a_wall(self):
+        """A dihedral corner ahead (the §4.4–4.5 geometry: the wall meets an end wall): its
+        retro-reflection is a corner within 0.3 m of the apex, and the wall beside it stays on
+        its face."""
+        walls = [([-1.5, -0.7], [6.5, -0.7]), ([6.5, 1.3], [6.5, -0.7])]
+        apex = np.array([6.5, -0.7])
+        fusion = WallFusion(RADAR, exact_settings(correct_poses=False))
+        for pose in straight_poses(0.0, 5.6):
+            echoes = wall_echoes(pose, walls)
+            a, b = walls
+            path = bistatic.double_bounce_path(bistatic.world_to_robot(a[0], pose), [0.0, 1.0],
+                                               bistatic.world_to_robot(b[1], pose), [-1.0, 0.0], TX, RX)
+            if path is not None:
+                echoes.append({"aoa_deg": math.degrees(path[0]), "delay_s": path[1], "power": 1e-3 / (C * path[1]) ** 2})
+            fusion.add(pose, echoes)
+        fused = fusion.build_map()
+        self.assertTrue(fused.corners, "no corner")
+        best = min(fused.corners, key=lambda c: np.hypot(*(c.position_m - apex)))
+        self.assertLess(np.hypot(*(best.position_m - apex)), 0.3)
+        los = wall_near(fused, -0.7)
+        for end in (los.start_m, los.end_m):
+            self.assertAlmostEqual(end[1], -0.7, delta=0.01)
+
+    def test_bad_input_is_counted_or_refused(self):
+        fusion = WallFusion(RADAR, exact_settings())
+        direct_s = bistatic.direct_delay_s(TX, RX)
+        kept = fusion.add([0.0, 0.0, 0.0], [
+            {"aoa_deg": 270.0, "delay_s": 0.8 * direct_s, "power": 1.0},  # before the direct path
+            {"aoa_deg": 200.0, "delay_s": direct_s + 0.3e-9, "power": 1.0},  # the near-field residue
+            {"aoa_deg": float("nan"), "delay_s": 5e-9, "power": 1.0},
+            {"aoa_deg": 243.4, "delay_s": float("inf"), "power": 1.0},
+            {"angle_deg": 243.43, "delay_s": 5.22e-9, "power": 1.0},  # jade_estimator's key
+        ])
+        self.assertEqual(kept, 1)
+        self.assertEqual(fusion.counts["skipped_early"], 2)
+        self.assertEqual(fusion.counts["skipped_nonfinite"], 2)
+        with self.assertRaisesRegex(FusionError, "pose"):
+            fusion.add([0.0, float("nan"), 0.0], [])
+        with self.assertRaisesRegex(FusionError, "delay_s"):
+            fusion.add([0.0, 0.0, 0.0], [{"aoa_deg": 10.0}])
+        with self.assertRaisesRegex(FusionError, "line_tolerance_m"):
+            WallFusion(RADAR, FusionSettings(line_tolerance_m=-1.0))
+
+    def test_no_walls(self):
+        """Free space (only the direct path's residue) and an empty fusion give empty maps that
+        still follow FORMATS.md."""
+        empty = WallFusion(RADAR, exact_settings()).build_map()
+        self.assertEqual(empty.walls, [])
+        evaluation.load_map(empty.to_geojson())
+        fusion = WallFusion(RADAR, exact_settings())
+        for pose in straight_poses(0.0, 2.0):
+            fusion.add(pose, [{"aoa_deg": 180.0, "delay_s": 2.4e-9, "power": 1e-4}])
+        fused = fusion.build_map()
+        self.assertEqual(fused.walls, [])
+        self.assertEqual(fused.stats["skipped_early"], len(straight_poses(0.0, 2.0)))
+        data = fused.to_geojson()
+        evaluation.load_map(data)
+        kinds = [f["properties"]["kind"] for f in data["features"]]
+        self.assertIn("trajectory", kinds)
+
+    # -- the block ---------------------------------------------------------------------------
+    @staticmethod
+    def paths_message(frame_index, echoes, pose=None):
+        vector = pmt.make_vector(len(echoes), pmt.PMT_NIL)
+        for i, e in enumerate(echoes):
+            d = pmt.make_dict()
+            d = pmt.dict_add(d, pmt.intern("angle_deg"), pmt.from_double(e["aoa_deg"] % 360))
+            d = pmt.dict_add(d, pmt.intern("delay_s"), pmt.from_double(e["delay_s"]))
+            d = pmt.dict_add(d, pmt.intern("power"), pmt.from_double(e["power"]))
+            d = pmt.dict_add(d, pmt.intern("spectrum_db"), pmt.from_double(30.0))
+            d = pmt.dict_add(d, pmt.intern("stage"), pmt.from_long(0))
+            pmt.vector_set(vector, i, d)
+        msg = pmt.make_dict()
+        msg = pmt.dict_add(msg, pmt.intern("frame_index"), pmt.from_uint64(frame_index))
+        if pose is not None:
+            msg = pmt.dict_add(msg, pmt.intern("pose"), pmt.init_f64vector(3, [float(v) for v in pose]))
+        msg = pmt.dict_add(msg, pmt.intern("model_order"), pmt.from_long(len(echoes)))
+        return pmt.dict_add(msg, pmt.intern("paths"), vector)
+
+    def run_block(self, post, update_interval=5, expect_maps=1, timeout_s=60.0):
+        tb = gr.top_block()
+        block = wall_fusion(None, material="none", update_interval=update_interval, correct_poses=False)
+        sink = blocks.message_debug()
+        tb.msg_connect((block, "map"), (sink, "store"))
+        tb.start()
+        post(block)
+        deadline = time.time() + timeout_s
+        while sink.num_messages() < expect_maps and time.time() < deadline:
+            time.sleep(0.02)
+        received = sink.num_messages()
+        tb.stop()
+        tb.wait()
+        return block, sink, received
+
+    def test_block_messages_in_map_out(self):
+        """Pose and paths messages as survey_source and jade_estimator send them (two frames
+        per pose); the map messages hold the corridor's walls."""
+        walls = [([-2.0, -1.0], [12.0, -1.0]), ([-2.0, 1.3], [12.0, 1.3])]
+        poses = straight_poses(0.0, 3.0)
+
+        def post(block):
+            for i, pose in enumerate(poses):
+                block._post(pmt.intern("pose"), pose_message(2 * i, pose))
+                for k in range(2):
+                    block._post(pmt.intern("paths"), self.paths_message(2 * i + k, wall_echoes(pose, walls)))
+
+        block, sink, received = self.run_block(post, update_interval=5, expect_maps=2)
+        self.assertGreaterEqual(received, 2)
+        msg = sink.get_message(received - 1)
+        walls_pmt = pmt.dict_ref(msg, pmt.intern("walls"), pmt.PMT_NIL)
+        self.assertGreaterEqual(pmt.length(walls_pmt), 2)
+        ys = sorted(pmt.f64vector_elements(pmt.dict_ref(pmt.vector_ref(walls_pmt, i), pmt.intern("start"), pmt.PMT_NIL))[1]
+                    for i in range(pmt.length(walls_pmt)))
+        self.assertAlmostEqual(ys[0], -1.0, delta=1e-3)
+        self.assertAlmostEqual(ys[-1], 1.3, delta=1e-3)
+        # the map when the flowgraph stopped holds every pose
+        self.assertEqual(block.num_poses(), len(poses))
+        self.assertEqual(block.last_map().stats["poses"], len(poses))
+        self.assertEqual(block.num_skipped(), 0)
+        self.assertTrue(json.loads(block.map_geojson())["features"])
+
+    def test_block_bad_input(self):
+        """A pose out of order, a malformed message, a message that is not a dict: counted."""
+        walls = [([-2.0, -1.0], [12.0, -1.0])]
+
+        def post(block):
+            block._post(pmt.intern("pose"), pose_message(10, [1.0, 0.0, 0.0]))
+            block._post(pmt.intern("pose"), pose_message(4, [0.0, 0.0, 0.0]))  # out of order
+            block._post(pmt.intern("paths"), pmt.intern("not a dict"))
+            block._post(pmt.intern("paths"), pmt.cons(pmt.make_dict(), pmt.PMT_NIL))
+            for i in range(6):
+                pose = [1.0 + 0.2 * i, 0.0, 0.0]
+                block._post(pmt.intern("paths"), self.paths_message(11 + i, wall_echoes(np.array(pose), walls), pose))
+
+        block, _, _ = self.run_block(post, update_interval=3, expect_maps=2)
+        counts = block.skipped_counts()
+        self.assertEqual(counts["stale_pose"], 1)
+        self.assertEqual(counts["malformed"], 2)
+        self.assertEqual(block.num_poses(), 6)
+
+    def test_block_without_poses(self):
+        """Paths but no pose at all: nothing to place them with. They wait, and are counted as
+        skipped when the flowgraph stops; the map is empty."""
+        walls = [([-2.0, -1.0], [12.0, -1.0])]
+
+        def post(block):
+            for i in range(5):
+                block._post(pmt.intern("paths"), self.paths_message(i, wall_echoes(np.array([0.2 * i, 0, 0]), walls)))
+            time.sleep(0.2)
+
+        block, _, _ = self.run_block(post, update_interval=2, expect_maps=0, timeout_s=0.0)
+        self.assertEqual(block.skipped_counts()["no_pose"], 5)
+        self.assertEqual(block.num_poses(), 0)
+        self.assertEqual(block.last_map().walls, [])
+
+    def test_flowgraph_end_to_end(self):
+        """survey_source -> jade_estimator -> wall_fusion on a simulated survey (a metal wall
+        0.7 m to the right, 9 poses): the flowgraph ends by itself, and the map it leaves has
+        the wall on its face."""
+        import os
+        import tempfile
+
+        from gnuradio import thrumapper
+        from gnuradio.thrumapper import building_sim, scene, survey
+
+        sc = scene.load_scene({
+            "name": "fg", "seed": 9,
+            "radar": {"elements": 8, "radius_m": 0.08, "baseline_m": 0.7, "carrier_hz": 2.44e9,
+                      "bandwidth_hz": 120e6, "subcarriers": 64},
+            "tx_weights": {"mode": "null_steer", "main_lobe_deg": 270},
+            "walls": [{"segment": [[-4.0, -0.701], [6.0, -0.701]], "material": "metal"}],
+            "trajectory": {"waypoints": [[0.0, 0.0], [1.6, 0.0]], "step_m": 0.2},
+            "frames_per_pose": 2, "noise": {"power_db": -110},
+            "impairments": {"system_delay_s": 25e-9}})
+        res = building_sim.simulate_survey(sc, progress=False)
+        with tempfile.TemporaryDirectory() as tmp:
+            meta = survey.write_survey(
+                os.path.join(tmp, "fg"), res.csi, subcarrier_offsets_hz=sc.radar.subcarrier_offsets_hz,
+                center_frequency_hz=sc.radar.carrier_hz, rx_elements_m=sc.radar.rx_elements_m,
+                tx_elements_m=sc.radar.tx_elements_m, tx_weights=res.tx_weights, poses=res.poses_odometry,
+                frame_types=res.frame_types, system_delay_s=25e-9)
+            radar = thrumapper.radar_description.make(sc.radar.tx_elements_m, sc.radar.rx_elements_m,
+                                                      sc.radar.carrier_hz, list(sc.radar.subcarrier_offsets_hz),
+                                                      [complex(w) for w in res.tx_weights])
+            tb = gr.top_block()
+            source = thrumapper.survey_source(meta)
+            jade = thrumapper.jade_estimator(radar, 180, 0.0, 360.0, 120, 0.0, 40e-9, 8, 0, 25e-9)
+            sink = blocks.null_sink(gr.sizeof_float * 180 * 120)
+            fusion = wall_fusion(radar, material="metal", update_interval=100, correct_poses=False,
+                                 geojson_path=os.path.join(tmp, "map.geojson"))
+            tb.connect(source, jade, sink)
+            # the frames' pose tags reach the fusion inside jade_estimator's messages; the
+            # source's pose port is left out: GNU Radio ends a message-only block once an
+            # upstream block has finished and its queue is empty, and the source finishes first
+            tb.msg_connect((jade, "paths"), (fusion, "paths"))
+            tb.start()
+            # the messages of the last frames may still be queued when the stream ends
+            deadline = time.time() + 60
+            while jade.num_estimated() < res.csi.shape[0] and time.time() < deadline:
+                time.sleep(0.02)
+            time.sleep(0.2)
+            tb.stop()
+            tb.wait()
+            self.assertEqual(fusion.num_poses(), sc.num_poses)
+            written = evaluation.load_map(os.path.join(tmp, "map.geojson"))
+        wall = min(written.walls, key=lambda w: float(np.abs(w["coordinates"][:, 1] + 0.7).max()))
+        self.assertLess(float(np.abs(wall["coordinates"][:, 1] + 0.7).max()), 0.03)
+        self.assertEqual(wall["class"], "line_of_sight")
+
+    def test_map_pmt(self):
+        fusion = WallFusion(RADAR, exact_settings(correct_poses=False))
+        walls = [([-2.0, -1.0], [12.0, -1.0])]
+        for pose in straight_poses(0.0, 1.0):
+            fusion.add(pose, wall_echoes(pose, walls))
+        msg = map_to_pmt(fusion.build_map())
+        self.assertEqual(pmt.to_long(pmt.dict_ref(msg, pmt.intern("num_poses"), pmt.PMT_NIL)), 6)
+        trajectory = pmt.f64vector_elements(pmt.dict_ref(msg, pmt.intern("trajectory"), pmt.PMT_NIL))
+        self.assertEqual(len(trajectory), 18)
+
+
+if __name__ == "__main__":
+    gr_unittest.run(qa_wall_fusion)

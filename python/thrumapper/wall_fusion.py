@@ -1,0 +1,1663 @@
+#
+# SPDX-License-Identifier: GPL-3.0-or-later
+#
+"""Wall fusion: from echoes (angle, delay) and poses to a floor plan (docs/mapping.md).
+
+The library (`WallFusion`) works without a flowgraph: give it, pose after pose, the paths that
+JADE found and the pose the odometry reported, then ask for the map. The GNU Radio block
+`wall_fusion` at the end of this file wraps it: "paths" messages of jade_estimator and "pose"
+messages of survey_source in, "map" messages and the files out.
+
+What it does with a survey (each step is in docs/mapping.md with its reasons):
+
+1. Echo screening: a path with NaN/Inf, earlier than the direct path plus a margin (the
+   near-field direct coupling leaves weak far-field "paths" there; no reflector can answer
+   before the direct path), farther than the range limit or far weaker than the pose's
+   strongest echo is skipped and counted. Repeated frames at one pose are merged.
+2. Geometry (bistatic.py): the bistatic ellipse meets the bearing ray at the reflection point;
+   the ellipse's tangent there is the reflector's orientation.
+3. Slab correction (echo_model.py): a dielectric wall's two-face echo appears shifted in angle
+   and delay; the shift is modelled for the wall hypothesis (and the walls its legs cross) and
+   removed, and the geometry solved again.
+4. Point landmarks: echoes that stay at one world point while the robot moves and their
+   apparent orientation turns (dihedral corners, clutter, door frames) are taken out of the wall
+   evidence; those on the intersection or the line of mapped walls become corners.
+5. Walls: the remaining points and orientations are grouped into straight segments (Hough-
+   style seeds, inliers by distance and orientation, a robust total-least-squares fit), cut
+   where the evidence ends (gaps along the line), merged when collinear, extended to a corner
+   on their line.
+6. Classes by order along the ray: an echo whose legs cross another wall is hidden, otherwise
+   line_of_sight; a wall takes its echoes' majority. Hidden echoes that a double bounce between
+   two line-of-sight walls explains (multipath ghosts) are dropped.
+7. Pose correction: a sequential scan-to-map pass (each pose's line-of-sight echoes aligned
+   with the walls its predecessors mapped, from the odometry's prediction), then a global
+   least-squares adjustment of all poses with the line-of-sight walls and corners as landmarks
+   and the odometry increments as constraints (scipy).
+"""
+
+import json
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import bistatic
+from .echo_model import EchoModel, material_from
+
+C = bistatic.SPEED_OF_LIGHT_M_S
+CLASSES = ("line_of_sight", "hidden")
+LOS, HIDDEN = 0, 1
+# detection labels besides a wall index (>= 0)
+UNASSIGNED, CORNER, GHOST = -1, -2, -3
+
+
+class FusionError(ValueError):
+    """Input the fusion cannot use (bad settings, a malformed path or pose); the message names it."""
+
+
+# ----------------------------------------------------------------------------------------
+# Settings, inputs, outputs
+# ----------------------------------------------------------------------------------------
+@dataclass
+class FusionSettings:
+    """Tuning of the fusion; defaults are for the ThruMapper radar (docs/mapping.md)."""
+
+    #: reject echoes earlier than the direct path plus this (a reflection is later than the
+    #: direct path; the nulled near-field coupling leaves spurious far-field paths within ~1 ns)
+    min_excess_delay_s: float = 0.8e-9
+    #: reject reflection points farther than this from the robot...
+    max_range_m: float = 8.0
+    #: ...or nearer than this to the baseline between the array centres
+    min_standoff_m: float = 0.3
+    #: reject echoes this far below the pose's strongest accepted echo
+    min_relative_power_db: float = -45.0
+    #: an echo is evidence of a wall within this distance of its line...
+    line_tolerance_m: float = 0.15
+    #: ...and with its orientation within this angle of the wall's
+    angle_tolerance_deg: float = 15.0
+    #: a wall is cut where consecutive evidence along it is farther apart than this
+    max_gap_m: float = 1.2
+    #: distinct poses a wall needs (the survey's pose count when it has fewer)
+    min_wall_poses: int = 5
+    #: point landmarks: echoes within this radius of one world point...
+    corner_radius_m: float = 0.2
+    #: ...from at least this many poses...
+    corner_min_poses: int = 3
+    #: ...spread over at least this much robot travel...
+    corner_min_travel_m: float = 0.6
+    #: ...whose apparent orientations turn by at least this much (a wall seen end-on does not)
+    corner_min_turn_deg: float = 8.0
+    #: a point landmark this close to two walls' intersection (or one wall's line) is a corner
+    corner_wall_distance_m: float = 0.4
+    #: walls are extended to a corner on their line up to this far
+    corner_extension_m: float = 4.0
+    #: multipath ghosts: a double bounce predicted within these tolerances explains an echo
+    ghost_angle_tolerance_deg: float = 4.0
+    ghost_delay_tolerance_s: float = 0.5e-9
+    #: the walls' material for the slab correction: a preset name, a wall_model dict, or None
+    #: for no slab correction
+    material: object = "plasterboard"
+    #: correct the poses (scan-to-map, then a global least-squares adjustment)
+    correct_poses: bool = True
+    #: odometry error model for the pose correction (1-sigma per step)
+    odometry_scale_sigma: float = 0.01
+    odometry_heading_sigma_deg_per_m: float = 0.5
+    odometry_position_sigma_m: float = 0.005
+    odometry_heading_sigma_deg: float = 0.1
+    #: measurement noise of a reflection point
+    point_sigma_m: float = 0.05
+    #: ...and of its orientation (loose: the estimator's angle errors bias it)
+    orientation_sigma_deg: float = 20.0
+    #: echoes used per pose after screening, strongest first
+    max_paths_per_pose: int = 16
+
+    def check(self):
+        positive = ("max_range_m", "min_standoff_m", "line_tolerance_m", "angle_tolerance_deg", "max_gap_m", "corner_radius_m",
+                    "corner_min_travel_m", "corner_wall_distance_m", "ghost_angle_tolerance_deg",
+                    "ghost_delay_tolerance_s", "odometry_position_sigma_m", "point_sigma_m", "orientation_sigma_deg",
+                    "odometry_heading_sigma_deg")
+        for name in positive:
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise FusionError(f"{name}: expected a positive number, got {value!r}")
+        for name in ("min_excess_delay_s", "corner_extension_m", "corner_min_turn_deg", "odometry_scale_sigma",
+                     "odometry_heading_sigma_deg_per_m"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise FusionError(f"{name}: expected a number >= 0, got {value!r}")
+        for name in ("min_wall_poses", "corner_min_poses", "max_paths_per_pose"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 1):
+                raise FusionError(f"{name}: expected an integer >= 1, got {value!r}")
+        if not math.isfinite(self.min_relative_power_db):
+            raise FusionError(f"min_relative_power_db: expected a number, got {self.min_relative_power_db!r}")
+        material_from(self.material)
+
+
+@dataclass
+class RadarGeometry:
+    """What the fusion needs of the radar: element positions (robot frame), TX weights, carrier
+    and subcarriers (the slab model uses them all)."""
+
+    tx_elements_m: np.ndarray
+    rx_elements_m: np.ndarray
+    tx_weights: np.ndarray
+    carrier_hz: float
+    subcarrier_offsets_hz: np.ndarray
+
+    @property
+    def tx_centre_m(self):
+        return np.asarray(self.tx_elements_m, float).mean(axis=0)
+
+    @property
+    def rx_centre_m(self):
+        return np.asarray(self.rx_elements_m, float).mean(axis=0)
+
+    @property
+    def direct_delay_s(self):
+        return bistatic.direct_delay_s(self.tx_centre_m, self.rx_centre_m)
+
+    @classmethod
+    def from_survey(cls, survey):
+        return cls(np.asarray(survey.tx_elements_m, float), np.asarray(survey.rx_elements_m, float),
+                   np.asarray(survey.tx_weights, complex), float(survey.center_frequencies_hz[0]),
+                   np.asarray(survey.subcarrier_offsets_hz, float))
+
+    @classmethod
+    def from_radar(cls, radar, tx_weights=None):
+        """From a thrumapper.radar_description (its weights unless tx_weights is given)."""
+        def value(name):  # properties in the Python binding; accessors in C++
+            v = getattr(radar, name)
+            return v() if callable(v) else v
+
+        weights = value("tx_weights") if tx_weights is None else tx_weights
+        weights = np.asarray(weights, complex)
+        tx = np.asarray(value("tx_elements_m"), float)
+        if weights.size == 0:
+            weights = np.ones(tx.shape[0], complex)
+        return cls(tx, np.asarray(value("rx_elements_m"), float), weights, float(value("carrier_hz")),
+                   np.asarray(value("subcarrier_offsets_hz"), float))
+
+    @classmethod
+    def uca_pair(cls, elements=8, radius_m=0.08, baseline_m=0.7, carrier_hz=2.44e9, bandwidth_hz=120e6,
+                 subcarriers=128, tx_weights=None):
+        """The ThruMapper layout (radar_description.make_uca_pair's convention)."""
+        angles = 2.0 * np.pi * np.arange(elements) / elements
+        ring = radius_m * np.column_stack((np.cos(angles), np.sin(angles)))
+        tx = ring + np.array([-baseline_m / 2, 0.0])
+        rx = ring + np.array([baseline_m / 2, 0.0])
+        offsets = (np.arange(subcarriers) - (subcarriers - 1) / 2.0) * bandwidth_hz / subcarriers
+        weights = np.ones(elements, complex) if tx_weights is None else np.asarray(tx_weights, complex)
+        return cls(tx, rx, weights, carrier_hz, offsets)
+
+
+@dataclass
+class MapWall:
+    start_m: np.ndarray  # (2,) world
+    end_m: np.ndarray  # (2,)
+    normal: np.ndarray  # (2,) unit, from the face toward the side the radar saw it from
+    cls: str
+    confidence: float
+    num_poses: int
+    num_echoes: int
+    rms_m: float  # RMS distance of its echoes' points to the line
+    corners: list = field(default_factory=list)
+
+    @property
+    def length_m(self):
+        return float(np.hypot(*(self.end_m - self.start_m)))
+
+
+@dataclass
+class MapCorner:
+    position_m: np.ndarray
+    confidence: float
+    cls: str
+    num_poses: int
+    walls: tuple = ()  # indices of the walls it joins
+
+
+@dataclass
+class FusedMap:
+    """The map: walls, corners, the reflection points behind them, the trajectory."""
+
+    walls: list
+    corners: list
+    scatterers: list  # point landmarks that are not corners: (position (2,), num_poses)
+    detections: dict  # class -> (n, 2) fused reflection points (on the fitted walls)
+    echoes: dict  # class -> (n, 2) the measured reflection points (slab- and pose-corrected)
+    trajectory: np.ndarray  # (P, 3) corrected poses
+    odometry: np.ndarray  # (P, 3) as reported
+    frame_indices: list
+    stats: dict
+
+    def to_geojson(self, fused_detections=True):
+        """FORMATS.md's map: a FeatureCollection in world metres."""
+        features = []
+        for i, w in enumerate(self.walls):
+            features.append(_feature("LineString", [_xy(w.start_m), _xy(w.end_m)], {
+                "kind": "wall", "class": w.cls, "confidence": round(float(w.confidence), 4),
+                "num_poses": int(w.num_poses), "num_echoes": int(w.num_echoes), "fit_rms_m": round(float(w.rms_m), 4),
+                "normal": _xy(w.normal), "id": i}))
+        points = self.detections if fused_detections else self.echoes
+        for cls in CLASSES:
+            if cls in points and len(points[cls]):
+                features.append(_feature("MultiPoint", [_xy(p) for p in points[cls]],
+                                         {"kind": "detections", "class": cls,
+                                          "points": "fused" if fused_detections else "measured"}))
+        other = self.echoes if fused_detections else self.detections
+        for cls in CLASSES:
+            if cls in other and len(other[cls]):
+                features.append(_feature("MultiPoint", [_xy(p) for p in other[cls]],
+                                         {"kind": "echoes" if fused_detections else "fused_detections", "class": cls}))
+        for c in self.corners:
+            features.append(_feature("Point", _xy(c.position_m), {
+                "kind": "corner", "confidence": round(float(c.confidence), 4), "class": c.cls,
+                "num_poses": int(c.num_poses), "walls": [int(w) for w in c.walls]}))
+        for position, count in self.scatterers:
+            features.append(_feature("Point", _xy(position), {"kind": "scatterer", "num_poses": int(count)}))
+        trajectory = self.trajectory[:, :2] if len(self.trajectory) else np.zeros((0, 2))
+        if len(trajectory) == 1:
+            trajectory = np.vstack((trajectory, trajectory))  # a LineString needs two points
+        if len(trajectory):
+            features.append(_feature("LineString", [_xy(p) for p in trajectory], {
+                "kind": "trajectory", "corrected": bool(self.stats.get("poses_corrected", False)),
+                "headings_rad": [round(float(h), 6) for h in self.trajectory[:, 2]]}))
+            odometry = self.odometry[:, :2]
+            if len(odometry) == 1:
+                odometry = np.vstack((odometry, odometry))
+            features.append(_feature("LineString", [_xy(p) for p in odometry], {"kind": "odometry"}))
+        return {"type": "FeatureCollection", "thrumapper:crs": "local-metres", "features": features,
+                "thrumapper:stats": _jsonable(self.stats)}
+
+    def write_geojson(self, path, fused_detections=True):
+        with open(path, "w", encoding="utf-8") as handle:
+            json.dump(self.to_geojson(fused_detections), handle, indent=1)
+            handle.write("\n")
+
+
+def _xy(p):
+    return [round(float(p[0]), 5), round(float(p[1]), 5)]
+
+
+def _feature(kind, coordinates, properties):
+    return {"type": "Feature", "geometry": {"type": kind, "coordinates": coordinates}, "properties": properties}
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.floating, float)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    return value
+
+
+# ----------------------------------------------------------------------------------------
+# Small geometry helpers (world frame)
+# ----------------------------------------------------------------------------------------
+def _wrap(angle):
+    return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def _compose(pose, delta):
+    """pose ⊕ delta: delta [dx, dy, dh] expressed in pose's frame."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    return np.array([pose[0] + c * delta[0] - s * delta[1], pose[1] + s * delta[0] + c * delta[1],
+                     math.remainder(pose[2] + delta[2], 2.0 * math.pi)])
+
+
+def _relative(a, b):
+    """b expressed in a's frame: [dx, dy, dh]."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    d = np.asarray(b[:2]) - np.asarray(a[:2])
+    return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], math.remainder(b[2] - a[2], 2.0 * math.pi)])
+
+
+def _line_fit(points, weights, normals):
+    """Weighted total-least-squares line: (centre (2,), unit normal (2,), along spread m).
+
+    The normal's sign follows the echoes' mean normal. When the points do not spread along a
+    line (one pose, or a wall seen end-on), the echoes' mean orientation is used instead."""
+    w = np.asarray(weights, float)
+    w = w / w.sum()
+    centre = w @ points
+    d = points - centre
+    cov = (d * w[:, None]).T @ d
+    values, vectors = np.linalg.eigh(cov)
+    mean_normal = w @ normals
+    if np.hypot(*mean_normal) == 0:
+        mean_normal = np.array([0.0, 1.0])
+    mean_normal = mean_normal / np.hypot(*mean_normal)
+    spread = 2.0 * math.sqrt(max(values[1], 0.0)) * 2.0  # ±2σ along the principal axis
+    if spread >= 0.3 and values[1] > 4.0 * max(values[0], 1e-12):
+        normal = vectors[:, 0]
+    else:
+        normal = mean_normal
+    if normal @ mean_normal < 0:
+        normal = -normal
+    return centre, normal, spread
+
+
+# ----------------------------------------------------------------------------------------
+# The fusion
+# ----------------------------------------------------------------------------------------
+@dataclass
+class _PoseGroup:
+    pose: np.ndarray
+    frame_index: int
+    frames: int = 0
+    paths: list = field(default_factory=list)  # dicts: aoa_rad, delay_s, power, stage, count
+
+
+class WallFusion:
+    """Accumulates echoes and poses; builds the map on demand (build_map).
+
+    radar: a RadarGeometry (or a thrumapper.radar_description, or a Survey).
+    """
+
+    #: the sequential pose pass aligns an echo with its predecessors' echoes this close
+    SEQUENTIAL_REACH_M = 4.0
+    #: ...and uses only echoes this close to the robot
+    SEQUENTIAL_RANGE_M = 3.0
+    #: pose correction: the sequential filter first, then this many rounds of mapping and
+    #: global adjustment
+    SEQUENTIAL_PASS = False
+    ADJUSTMENT_ROUNDS = 2
+    #: repeated frames' paths closer than these are one echo
+    MERGE_ANGLE_RAD = math.radians(1.5)
+    MERGE_DELAY_S = 0.3e-9
+
+    def __init__(self, radar, settings=None):
+        if not isinstance(radar, RadarGeometry):
+            if hasattr(radar, "tx_elements_m") and hasattr(radar, "csi"):
+                radar = RadarGeometry.from_survey(radar)
+            elif hasattr(radar, "num_tx"):
+                radar = RadarGeometry.from_radar(radar)
+            else:
+                raise FusionError(f"radar: expected a RadarGeometry, radar_description or Survey, got {type(radar)}")
+        self.radar = radar
+        self.settings = settings or FusionSettings()
+        self.settings.check()
+        self.material = material_from(self.settings.material)
+        self.tx_c = radar.tx_centre_m
+        self.rx_c = radar.rx_centre_m
+        self.robot_c = 0.5 * (self.tx_c + self.rx_c)
+        self.direct_delay_s = radar.direct_delay_s
+        self.wavelength_m = C / radar.carrier_hz
+        self.echo_model = EchoModel(radar.tx_elements_m, radar.rx_elements_m, radar.tx_weights, radar.carrier_hz,
+                                    radar.subcarrier_offsets_hz)
+        self.groups = []
+        self.counts = {"messages": 0, "paths": 0, "skipped_nonfinite": 0, "skipped_early": 0, "skipped_far": 0,
+                       "skipped_weak": 0}
+
+    # -- input ---------------------------------------------------------------------------
+    @staticmethod
+    def _path_values(path):
+        """(aoa_rad, delay_s, power, stage) from a path dict of any of the module's forms."""
+        if hasattr(path, "aoa_rad"):  # a thrumapper.jade_path
+            return float(path.aoa_rad), float(path.delay_s), float(path.power), int(getattr(path, "stage", 0))
+        if not isinstance(path, dict):
+            raise FusionError(f"path: expected a dict with aoa_deg (or angle_deg) and delay_s, got {path!r}")
+        if "aoa_rad" in path:
+            aoa = float(path["aoa_rad"])
+        elif "aoa_deg" in path:
+            aoa = math.radians(float(path["aoa_deg"]))
+        elif "angle_deg" in path:
+            aoa = math.radians(float(path["angle_deg"]))
+        else:
+            raise FusionError(f"path: no aoa_deg, angle_deg or aoa_rad in {sorted(path)}")
+        if "delay_s" not in path:
+            raise FusionError(f"path: no delay_s in {sorted(path)}")
+        power = float(path.get("power", 1.0))
+        return aoa, float(path["delay_s"]), power, int(path.get("stage", 0))
+
+    def add(self, pose, paths, frame_index=None):
+        """One frame's (or one pose group's) paths, with the pose the odometry reported.
+
+        A pose equal to the previous one continues its group (repeated soundings). Returns the
+        number of paths kept. Raises FusionError on a pose that is not three finite numbers.
+        """
+        pose = np.asarray(pose, dtype=float).reshape(-1)
+        if pose.shape != (3,) or not np.all(np.isfinite(pose)):
+            raise FusionError(f"pose: expected [x, y, heading] finite, got {pose.tolist()}")
+        self.counts["messages"] += 1
+        if frame_index is None:
+            frame_index = (self.groups[-1].frame_index + 1) if self.groups else 0
+        if self.groups and np.all(np.abs(self.groups[-1].pose - pose) <= 1e-9):
+            group = self.groups[-1]
+        else:
+            group = _PoseGroup(pose=pose.copy(), frame_index=int(frame_index))
+            self.groups.append(group)
+        group.frames += 1
+        kept = 0
+        for path in paths:
+            self.counts["paths"] += 1
+            aoa, delay, power, stage = self._path_values(path)
+            if not (math.isfinite(aoa) and math.isfinite(delay) and math.isfinite(power)) or power < 0:
+                self.counts["skipped_nonfinite"] += 1
+                continue
+            if delay < self.direct_delay_s + self.settings.min_excess_delay_s:
+                self.counts["skipped_early"] += 1
+                continue
+            aoa = aoa % (2.0 * math.pi)
+            merged = False
+            for q in group.paths:
+                if abs(_wrap(q["aoa_rad"] - aoa)) < self.MERGE_ANGLE_RAD and abs(q["delay_s"] - delay) < self.MERGE_DELAY_S:
+                    n = q["count"]
+                    q["aoa_rad"] = (q["aoa_rad"] + _wrap(aoa - q["aoa_rad"]) / (n + 1)) % (2.0 * math.pi)
+                    q["delay_s"] += (delay - q["delay_s"]) / (n + 1)
+                    q["power"] += (power - q["power"]) / (n + 1)
+                    q["count"] = n + 1
+                    merged = True
+                    break
+            if not merged:
+                group.paths.append({"aoa_rad": aoa, "delay_s": delay, "power": power, "stage": stage, "count": 1})
+            kept += 1
+        return kept
+
+    @property
+    def num_poses(self):
+        return len(self.groups)
+
+    # -- detections ------------------------------------------------------------------------
+    def _detections(self):
+        """Screened echoes of every pose group as arrays (robot frame geometry uncorrected)."""
+        s = self.settings
+        rows = []
+        for gi, group in enumerate(self.groups):
+            if not group.paths:
+                continue
+            order = sorted(group.paths, key=lambda q: -q["power"])
+            strongest = None
+            kept = 0
+            for q in order:
+                try:
+                    point, normal = bistatic.reflection_point(q["aoa_rad"], q["delay_s"], self.tx_c, self.rx_c)
+                except bistatic.GeometryError:
+                    continue  # screened in add(); kept for paths added by older code paths
+                rng = float(np.hypot(*(point - self.robot_c)))
+                if rng > s.max_range_m or self._too_close(point):
+                    continue
+                if strongest is None:
+                    strongest = q["power"]
+                rel_db = 10.0 * math.log10(max(q["power"], 1e-300) / max(strongest, 1e-300))
+                if rel_db < s.min_relative_power_db or kept >= s.max_paths_per_pose:
+                    continue
+                kept += 1
+                rows.append((gi, q["aoa_rad"], q["delay_s"], q["power"], rel_db, q["stage"]))
+        if not rows:
+            return None
+        a = np.array(rows, dtype=float)
+        return {"group": a[:, 0].astype(int), "aoa": a[:, 1], "delay": a[:, 2], "power": a[:, 3],
+                "rel_db": a[:, 4], "stage": a[:, 5].astype(int)}
+
+    def _screen_counts(self):
+        """Counts of echoes dropped by range and power (recomputed with the settings)."""
+        s = self.settings
+        far = weak = near = 0
+        for group in self.groups:
+            strongest = None
+            kept = 0
+            for q in sorted(group.paths, key=lambda q: -q["power"]):
+                try:
+                    point, _ = bistatic.reflection_point(q["aoa_rad"], q["delay_s"], self.tx_c, self.rx_c)
+                except bistatic.GeometryError:
+                    continue
+                if float(np.hypot(*(point - self.robot_c))) > s.max_range_m:
+                    far += 1
+                    continue
+                if self._too_close(point):
+                    near += 1
+                    continue
+                if strongest is None:
+                    strongest = q["power"]
+                rel_db = 10.0 * math.log10(max(q["power"], 1e-300) / max(strongest, 1e-300))
+                if rel_db < s.min_relative_power_db or kept >= s.max_paths_per_pose:
+                    weak += 1
+                    continue
+                kept += 1
+        return far, weak, near
+
+    def _too_close(self, point_r):
+        """A reflection point nearer the baseline between the arrays than min_standoff_m: no
+        wall stands there (the arrays would be in it); the nulled direct coupling's near-field
+        residue lands there."""
+        a, b = self.tx_c, self.rx_c
+        t = np.clip((point_r - a) @ (b - a) / ((b - a) @ (b - a)), 0.0, 1.0)
+        return float(np.hypot(*(point_r - (a + t * (b - a))))) < self.settings.min_standoff_m
+
+    def _geometry(self, det, shift_aoa, shift_delay):
+        """Robot-frame points and normals after removing the modelled shifts."""
+        aoa = det["aoa"] - shift_aoa
+        delay = np.maximum(det["delay"] - shift_delay, self.direct_delay_s * (1 + 1e-6) + 1e-12)
+        return bistatic.reflection_point(aoa, delay, self.tx_c, self.rx_c)
+
+    @staticmethod
+    def _to_world(points_r, normals_r, poses, group):
+        p = poses[group]
+        c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
+        pw = np.column_stack((p[:, 0] + c * points_r[:, 0] - s * points_r[:, 1],
+                              p[:, 1] + s * points_r[:, 0] + c * points_r[:, 1]))
+        nw = np.column_stack((c * normals_r[:, 0] - s * normals_r[:, 1], s * normals_r[:, 0] + c * normals_r[:, 1]))
+        return pw, nw
+
+    # -- point landmarks -------------------------------------------------------------------
+    def _point_landmarks(self, pw, nw, group, poses, active):
+        """Clusters of echoes that stay put while the robot moves and their orientation turns.
+        Returns a list of (centre (2,), member indices)."""
+        s = self.settings
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            return []
+        pts = pw[idx]
+        d2 = np.sum((pts[:, None, :] - pts[None, :, :]) ** 2, axis=2)
+        near = d2 <= s.corner_radius_m ** 2
+        used = np.zeros(idx.size, bool)
+        robot = poses[:, :2]
+        landmarks = []
+        cos_turn = math.cos(math.radians(s.corner_min_turn_deg))
+        # seeds with the most distinct poses in reach first
+        onehot = np.zeros((idx.size, int(group.max()) + 1), np.float32)
+        onehot[np.arange(idx.size), group[idx]] = 1.0
+        reach = np.count_nonzero(near.astype(np.float32) @ onehot, axis=1)
+        for i in np.argsort(-reach, kind="stable"):
+            if used[i] or reach[i] < s.corner_min_poses:
+                continue
+            members = np.flatnonzero(near[i] & ~used)
+            for _ in range(3):  # re-centre on the members' median
+                centre = np.median(pts[members], axis=0)
+                dist2 = np.sum((pts - centre) ** 2, axis=1)
+                members = np.flatnonzero((dist2 <= s.corner_radius_m ** 2) & ~used)
+                # a point scatterer gives one echo per pose: the closest (a wall's specular
+                # echo that passes nearby at the same pose is not it)
+                closest = {}
+                for m in members:
+                    g = group[idx[m]]
+                    if g not in closest or dist2[m] < dist2[closest[g]]:
+                        closest[g] = m
+                members = np.array(sorted(closest.values()), int)
+                if members.size == 0:
+                    break
+            if members.size == 0:
+                continue
+            groups_here = np.unique(group[idx[members]])
+            if groups_here.size < s.corner_min_poses:
+                continue
+            travel = robot[groups_here]
+            span = float(np.max(np.hypot(*(travel[:, None, :] - travel[None, :, :]).transpose(2, 0, 1))))
+            if span < s.corner_min_travel_m:
+                continue
+            normals = nw[idx[members]]
+            # the orientation must turn: a wall seen end-on keeps it
+            if float(np.min(normals @ normals.T)) > cos_turn:
+                continue
+            used[members] = True
+            landmarks.append((np.median(pts[members], axis=0), idx[members]))
+        return landmarks
+
+    # -- walls -----------------------------------------------------------------------------
+    def _extract_walls(self, pw, nw, group, ranges, active, min_poses):
+        """Straight segments from points and orientations. Returns a list of dicts:
+        centre, normal, direction, t0, t1 (extent along direction), members (indices)."""
+        s = self.settings
+        tol = s.line_tolerance_m
+        cos_tol = math.cos(math.radians(s.angle_tolerance_deg))
+        idx = np.flatnonzero(active)
+        walls = []
+        if idx.size == 0:
+            return walls
+        pts, nrm, grp, rng = pw[idx], nw[idx], group[idx], ranges[idx]
+        rho = np.sum(pts * nrm, axis=1)
+        dist = np.abs(pts @ nrm.T - rho[None, :])  # [j, i]: point j to the line of echo i
+        compat = (dist.T < tol) & (nrm @ nrm.T > cos_tol)  # [i, j]
+        free = np.ones(idx.size, bool)
+        tried = np.zeros(idx.size, bool)
+        half_zone = 0.5 * np.sqrt(self.wavelength_m * np.maximum(rng, 0.1))  # half a Fresnel zone
+        onehot = np.zeros((idx.size, int(grp.max()) + 1), np.float32)
+        onehot[np.arange(idx.size), grp] = 1.0
+        compat_f = compat.astype(np.float32)
+        while True:
+            # distinct poses among each echo's compatible free echoes
+            support = np.count_nonzero((compat_f * free.astype(np.float32)[None, :]) @ onehot, axis=1)
+            support[~free | tried] = 0
+            seed = int(np.argmax(support))
+            if support[seed] < min_poses:
+                break
+            members = np.flatnonzero(compat[seed] & free)
+            centre, normal, _ = _line_fit(pts[members], np.ones(members.size), nrm[members])
+            for _ in range(4):
+                off = np.abs((pts - centre) @ normal)
+                cand = np.flatnonzero(free & (off < tol) & (nrm @ normal > cos_tol))
+                if cand.size == 0:
+                    break
+                resid = (pts[cand] - centre) @ normal
+                scale = max(0.5 * tol, 1e-3)
+                weights = 1.0 / np.maximum(1.0, np.abs(resid) / scale)  # Huber
+                centre, normal, _ = _line_fit(pts[cand], weights, nrm[cand])
+                members = cand
+            if members.size == 0:
+                tried[seed] = True
+                continue
+            direction = np.array([-normal[1], normal[0]])
+            t = (pts[members] - centre) @ direction
+            order = np.argsort(t)
+            runs, start = [], 0
+            gaps = np.diff(t[order]) > s.max_gap_m
+            for k, gap in enumerate(gaps):
+                if gap:
+                    runs.append(order[start:k + 1])
+                    start = k + 1
+            runs.append(order[start:])
+            best = max(runs, key=lambda r: (np.unique(grp[members[r]]).size, r.size))
+            run = members[best]
+            if np.unique(grp[run]).size < min_poses:
+                tried[seed] = True
+                if seed in run:
+                    continue
+                continue
+            centre, normal, _ = _line_fit(pts[run], np.ones(run.size), nrm[run])
+            direction = np.array([-normal[1], normal[0]])
+            t = (pts[run] - centre) @ direction
+            lo, hi = int(np.argmin(t)), int(np.argmax(t))
+            walls.append({"centre": centre, "normal": normal, "direction": direction,
+                          "t0": float(t[lo] - half_zone[run[lo]]), "t1": float(t[hi] + half_zone[run[hi]]),
+                          "members": idx[run]})
+            free[run] = False
+        return self._merge_walls(walls, pw, nw)
+
+    def _merge_walls(self, walls, pw, nw):
+        """Merge collinear walls whose extents overlap or nearly meet."""
+        s = self.settings
+        cos_tol = math.cos(math.radians(0.5 * s.angle_tolerance_deg))
+        merged = True
+        while merged and len(walls) > 1:
+            merged = False
+            for a in range(len(walls)):
+                for b in range(a + 1, len(walls)):
+                    wa, wb = walls[a], walls[b]
+                    if wa["normal"] @ wb["normal"] < cos_tol:
+                        continue
+                    if abs((wb["centre"] - wa["centre"]) @ wa["normal"]) > s.line_tolerance_m:
+                        continue
+                    tb0 = (wb["centre"] - wa["centre"]) @ wa["direction"] + min(wb["t0"] * (wb["direction"] @ wa["direction"]),
+                                                                                wb["t1"] * (wb["direction"] @ wa["direction"]))
+                    tb1 = (wb["centre"] - wa["centre"]) @ wa["direction"] + max(wb["t0"] * (wb["direction"] @ wa["direction"]),
+                                                                                wb["t1"] * (wb["direction"] @ wa["direction"]))
+                    gap = max(tb0 - wa["t1"], wa["t0"] - tb1)
+                    if gap > s.max_gap_m:
+                        continue
+                    members = np.concatenate((wa["members"], wb["members"]))
+                    centre, normal, _ = _line_fit(pw[members], np.ones(members.size), nw[members])
+                    direction = np.array([-normal[1], normal[0]])
+                    ends = []
+                    for w in (wa, wb):
+                        for tt in (w["t0"], w["t1"]):
+                            ends.append((w["centre"] + tt * w["direction"] - centre) @ direction)
+                    walls[a] = {"centre": centre, "normal": normal, "direction": direction,
+                                "t0": float(min(ends)), "t1": float(max(ends)), "members": members}
+                    del walls[b]
+                    merged = True
+                    break
+                if merged:
+                    break
+        return walls
+
+    def _clip_to_trajectory(self, walls, pw, poses, clearance_m=0.3):
+        """The robot drove along its trajectory, so no wall crosses it: a wall that does is
+        cut there (clearance_m short of the path) and keeps the side with most of its echoes."""
+        if len(poses) < 2:
+            return walls
+        a = poses[:-1, :2]
+        b = poses[1:, :2]
+        kept = []
+        for w in walls:
+            p0 = w["centre"] + w["t0"] * w["direction"]
+            p1 = w["centre"] + w["t1"] * w["direction"]
+            hit = bistatic.segments_cross(p0[None, :], p1[None, :], a, b)
+            if not np.any(hit):
+                kept.append(w)
+                continue
+            # crossing positions along the wall
+            cuts = []
+            for i in np.flatnonzero(hit):
+                d = b[i] - a[i]
+                m = np.column_stack((w["direction"], -d))
+                t, _ = np.linalg.solve(m, a[i] - w["centre"])
+                cuts.append(float(t))
+            edges = [w["t0"]] + sorted(cuts) + [w["t1"]]
+            t_members = (pw[w["members"]] - w["centre"]) @ w["direction"]
+            best, best_count = None, 0
+            for lo, hi in zip(edges[:-1], edges[1:]):
+                lo_c = lo + (clearance_m if lo != w["t0"] else 0.0)
+                hi_c = hi - (clearance_m if hi != w["t1"] else 0.0)
+                inside = (t_members >= lo_c) & (t_members <= hi_c)
+                if hi_c > lo_c and np.count_nonzero(inside) > best_count:
+                    best, best_count = (lo_c, hi_c, inside), np.count_nonzero(inside)
+            if best is None:
+                continue
+            lo_c, hi_c, inside = best
+            clipped = dict(w)
+            clipped["t0"], clipped["t1"] = lo_c, hi_c
+            clipped["members"] = w["members"][inside]
+            kept.append(clipped)
+        return kept
+
+    # -- classes, crossings, ghosts --------------------------------------------------------
+    def _segments(self, walls, margin_m=0.0):
+        a = np.array([w["centre"] + (w["t0"] - margin_m) * w["direction"] for w in walls]).reshape(-1, 2)
+        b = np.array([w["centre"] + (w["t1"] + margin_m) * w["direction"] for w in walls]).reshape(-1, 2)
+        return a, b
+
+    def _crossings(self, walls, pw, group, poses, own):
+        """For each echo, the walls (other than its own) its two legs cross: list of lists."""
+        n = pw.shape[0]
+        out = [[] for _ in range(n)]
+        if not walls:
+            return out
+        a, b = self._segments(walls, margin_m=0.3)
+        p = poses[group]
+        c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
+        tx = np.column_stack((p[:, 0] + c * self.tx_c[0] - s * self.tx_c[1], p[:, 1] + s * self.tx_c[0] + c * self.tx_c[1]))
+        rx = np.column_stack((p[:, 0] + c * self.rx_c[0] - s * self.rx_c[1], p[:, 1] + s * self.rx_c[0] + c * self.rx_c[1]))
+        # stop the legs short of the reflection point: its own wall must not count
+        end_tx = pw + 0.03 * (tx - pw)
+        end_rx = pw + 0.03 * (rx - pw)
+        hit = bistatic.segments_cross(tx[:, None, :], end_tx[:, None, :], a[None], b[None]) | \
+            bistatic.segments_cross(rx[:, None, :], end_rx[:, None, :], a[None], b[None])
+        for i in range(n):
+            out[i] = [int(w) for w in np.flatnonzero(hit[i]) if w != own[i]]
+        return out
+
+    def _robot_line(self, wall, pose):
+        """A world wall as (face point, normal) in the robot frame of pose."""
+        point = bistatic.world_to_robot(wall["centre"], pose)
+        normal = bistatic.rotate(wall["normal"], -pose[2])
+        return point, normal
+
+    def _ghosts(self, det, walls, wall_cls, group, poses, candidates):
+        """Echoes that a double bounce explains (multipath ghosts).
+
+        At each echo's pose, the double bounces TX → wall a → wall b → RX between the mapped
+        walls (b line of sight; a may be hidden behind another) are predicted by double
+        imaging. An echo within the angle and delay tolerances of one is a ghost; so are all
+        the echoes of a hidden wall when most of them are within twice the tolerances (a
+        corridor's double bounces line up into a wall on the mirror image of the other one).
+        """
+        s = self.settings
+        n = det["aoa"].size
+        ghost = np.zeros(n, bool)
+        near_ghost = np.zeros(n, bool)
+        if len(walls) < 2 or not any(c == LOS for c in wall_cls):
+            return ghost
+        tol_a = math.radians(s.ghost_angle_tolerance_deg)
+        tol_d = s.ghost_delay_tolerance_s
+        hidden_members = np.zeros(n, bool)
+        for k, w in enumerate(walls):
+            if wall_cls[k] == HIDDEN:
+                hidden_members[w["members"]] = True
+        check = candidates | hidden_members
+        by_group = {}
+        for i in np.flatnonzero(check):
+            by_group.setdefault(int(group[i]), []).append(i)
+        for g, members in by_group.items():
+            pose = poses[g]
+            lines = []
+            for k in range(len(walls)):
+                # only walls whose segment is within reach: a double bounce's two legs to it
+                # and back fit in the range
+                a = walls[k]["centre"] + walls[k]["t0"] * walls[k]["direction"]
+                b = walls[k]["centre"] + walls[k]["t1"] * walls[k]["direction"]
+                t = np.clip((pose[:2] - a) @ (b - a) / max((b - a) @ (b - a), 1e-12), 0.0, 1.0)
+                if np.hypot(*(pose[:2] - (a + t * (b - a)))) > 0.5 * s.max_range_m:
+                    continue
+                p_r, n_r = self._robot_line(walls[k], pose)
+                if (self.robot_c - p_r) @ n_r <= 0:
+                    continue
+                lines.append((p_r, n_r, wall_cls[k] == LOS))
+            predictions = []
+            for first in lines:
+                for second in lines:
+                    if first is second or not second[2]:
+                        continue
+                    path = bistatic.double_bounce_path(first[0], first[1], second[0], second[1], self.tx_c, self.rx_c)
+                    if path is not None:
+                        predictions.append(path[:2])
+            if not predictions:
+                continue
+            pred = np.array(predictions)
+            for i in members:
+                da = np.abs(_wrap(det["aoa"][i] - pred[:, 0]))
+                dd = np.abs(det["delay"][i] - pred[:, 1])
+                if np.any((da < tol_a) & (dd < tol_d)):
+                    ghost[i] = ghost[i] or bool(candidates[i])
+                if np.any((da < 2 * tol_a) & (dd < 2 * tol_d)):
+                    near_ghost[i] = True
+        for k, w in enumerate(walls):
+            if wall_cls[k] == HIDDEN and np.mean(near_ghost[w["members"]]) > 0.5:
+                ghost[w["members"]] = True
+        return ghost
+
+    # -- slab correction -------------------------------------------------------------------
+    def _shifts(self, det, walls, labels, crossings, poses):
+        n = det["aoa"].size
+        d_aoa = np.zeros(n)
+        d_delay = np.zeros(n)
+        if self.material is None:
+            return d_aoa, d_delay
+        for i in range(n):
+            k = labels[i]
+            if k < 0:
+                continue
+            pose = poses[det["group"][i]]
+            p_r, n_r = self._robot_line(walls[k], pose)
+            if (self.robot_c - p_r) @ n_r <= 0:
+                continue
+            crossed = []
+            for j in crossings[i]:
+                q_r, m_r = self._robot_line(walls[j], pose)
+                if (self.robot_c - q_r) @ m_r < 0:
+                    m_r = -m_r
+                crossed.append((q_r, m_r, self.material))
+            da, dd = self.echo_model.cached_shift(p_r, n_r, self.material, tuple(crossed))
+            d_aoa[i], d_delay[i] = da, dd
+        return d_aoa, d_delay
+
+    # -- the map ---------------------------------------------------------------------------
+    def _map_pass(self, det, poses, shifts, min_poses, ghosts):
+        """Landmarks, walls, classes and crossings for fixed poses and shifts."""
+        points_r, normals_r = self._geometry(det, *shifts)
+        pw, nw = self._to_world(points_r, normals_r, poses, det["group"])
+        ranges = np.hypot(*(points_r - self.robot_c).T)
+        active = ~ghosts
+        landmarks = self._point_landmarks(pw, nw, det["group"], poses, active) if len(poses) > 1 else []
+        labels = np.full(pw.shape[0], UNASSIGNED)
+        for _, members in landmarks:
+            labels[members] = CORNER
+        walls = self._extract_walls(pw, nw, det["group"], ranges, active & (labels == UNASSIGNED), min_poses)
+        walls = self._clip_to_trajectory(walls, pw, poses)
+        for k, w in enumerate(walls):
+            labels[w["members"]] = k
+        crossings = self._crossings(walls, pw, det["group"], poses, labels)
+        blocked = self._behind_nearer_echo(pw, nw, det["group"], poses, ranges, active & (labels != CORNER))
+        return {"points_r": points_r, "normals_r": normals_r, "pw": pw, "nw": nw, "labels": labels,
+                "walls": walls, "landmarks": landmarks, "crossings": crossings, "blocked": blocked}
+
+    def _behind_nearer_echo(self, pw, nw, group, poses, ranges, usable, half_patch_m=0.6):
+        """Echoes whose legs cross the face of a nearer echo of the same pose (that echo's
+        tangent, half_patch_m either side): behind a wall even where that wall is not mapped
+        (too few poses saw it)."""
+        blocked = np.zeros(pw.shape[0], bool)
+        for g in np.unique(group):
+            members = np.flatnonzero((group == g) & usable)
+            if members.size < 2:
+                continue
+            pose = poses[g]
+            tx = bistatic.robot_to_world(self.tx_c, pose)
+            rx = bistatic.robot_to_world(self.rx_c, pose)
+            for i in members:
+                nearer = members[ranges[members] < ranges[i] - 0.3]
+                if nearer.size == 0:
+                    continue
+                tangent = np.column_stack((-nw[nearer, 1], nw[nearer, 0]))
+                a = pw[nearer] - half_patch_m * tangent
+                b = pw[nearer] + half_patch_m * tangent
+                end_tx = pw[i] + 0.03 * (tx - pw[i])
+                end_rx = pw[i] + 0.03 * (rx - pw[i])
+                if np.any(bistatic.segments_cross(tx[None], end_tx[None], a, b)) or \
+                        np.any(bistatic.segments_cross(rx[None], end_rx[None], a, b)):
+                    blocked[i] = True
+        return blocked
+
+    def _classify(self, state):
+        """Classes by order along the ray: an echo whose legs cross another wall (mapped, or a
+        nearer echo's face at the same pose) is hidden; a wall takes its echoes' majority."""
+        labels, crossings, blocked = state["labels"], state["crossings"], state["blocked"]
+        det_cls = np.array([HIDDEN if (crossings[i] or blocked[i]) else LOS for i in range(labels.size)])
+        wall_cls = []
+        for k, w in enumerate(state["walls"]):
+            votes = det_cls[w["members"]]
+            wall_cls.append(HIDDEN if np.mean(votes == HIDDEN) > 0.5 else LOS)
+        return det_cls, wall_cls
+
+    def _timed(self, phase, function, *args):
+        started = time.perf_counter()
+        try:
+            return function(*args)
+        finally:
+            self._phase_s[phase] = self._phase_s.get(phase, 0.0) + time.perf_counter() - started
+
+    def build_map(self):
+        """The map from everything added so far: a FusedMap. Its stats hold the counts and
+        the time spent in each phase (fusion_phases_s)."""
+        started = time.perf_counter()
+        self._phase_s = {}
+        self._odometry_fit = None
+        s = self.settings
+        odometry = np.array([g.pose for g in self.groups]).reshape(-1, 3)
+        frame_indices = [g.frame_index for g in self.groups]
+        far, weak, near = self._screen_counts()
+        stats = dict(self.counts)
+        stats.update({"poses": len(self.groups), "skipped_far": far, "skipped_weak": weak, "skipped_near": near,
+                      "direct_delay_s": self.direct_delay_s, "material": getattr(self.material, "name", None)})
+        det = self._timed("echo geometry", self._detections)
+        if det is None or not len(self.groups):
+            stats.update({"echoes": 0, "walls": 0, "corners": 0, "ghosts": 0, "elapsed_s": time.perf_counter() - started,
+                          "poses_corrected": False})
+            return FusedMap([], [], [], {}, {}, odometry.copy(), odometry, frame_indices, stats)
+        n = det["aoa"].size
+        min_poses = max(1, min(s.min_wall_poses, len(self.groups)))
+        shifts = (np.zeros(n), np.zeros(n))
+        ghosts = np.zeros(n, bool)
+
+        def refine(poses, shifts, ghosts):
+            """Map without slab shifts; classes, ghosts and the shifts of each echo from that
+            map's walls; the map again with them. The shift is evaluated once, at the walls the
+            uncorrected echoes give: iterating it to a fixed point would multiply any mismatch
+            between the model and the estimator by 1/(1 + slope), and the shift of a slab's echo
+            changes fast with the incidence angle at short range (docs/mapping.md)."""
+            zero = (np.zeros(n), np.zeros(n))
+            state = self._timed("walls and landmarks", self._map_pass, det, poses, zero, min_poses, ghosts)
+            for _ in range(2):
+                det_cls, wall_cls = self._classify(state)
+                ghosts = ghosts | self._timed("ghosts", self._ghosts, det, state["walls"], wall_cls, det["group"], poses,
+                                              (det_cls == HIDDEN) | (state["labels"] == UNASSIGNED))
+                state = self._timed("walls and landmarks", self._map_pass, det, poses, zero, min_poses, ghosts)
+            shifts = self._timed("slab correction", self._shifts, det, state["walls"], state["labels"],
+                                 state["crossings"], poses)
+            state = self._timed("walls and landmarks", self._map_pass, det, poses, shifts, min_poses, ghosts)
+            return state, shifts, ghosts
+
+        poses = odometry.copy()
+        state, shifts, ghosts = refine(poses, shifts, ghosts)
+        corrected = False
+        if s.correct_poses and len(self.groups) >= 3:
+            if self.SEQUENTIAL_PASS:
+                poses = self._timed("pose correction", self._sequential_poses, det, odometry, shifts, ghosts)
+            for _ in range(self.ADJUSTMENT_ROUNDS):
+                state, shifts, ghosts = refine(poses, shifts, ghosts)
+                det_cls, wall_cls = self._classify(state)
+                poses = self._timed("pose correction", self._adjust_poses, det, odometry, poses, state, wall_cls)
+            state, shifts, ghosts = refine(poses, shifts, ghosts)
+            corrected = True
+        det_cls, wall_cls = self._classify(state)
+        result = self._timed("output", self._assemble, det, poses, odometry, state, det_cls, wall_cls, ghosts,
+                             frame_indices, stats)
+        result.stats["poses_corrected"] = corrected
+        if self._odometry_fit:
+            result.stats.update(self._odometry_fit)
+        result.stats["fusion_phases_s"] = dict(self._phase_s)
+        result.stats["elapsed_s"] = time.perf_counter() - started
+        return result
+
+    # -- pose correction -------------------------------------------------------------------
+    def _sequential_poses(self, det, odometry, shifts, ghosts):
+        """An extended Kalman filter over the pose: predicted with each odometry increment
+        (its covariance grown by the odometry error model, so that a heading error shows up as
+        a growing cross-track error), updated with each line-of-sight echo's distance to the
+        local wall its predecessors mapped (a line fitted to their echoes within
+        SEQUENTIAL_REACH_M, same orientation). Echoes seen end-on (end walls) and point landmarks fix the along-track
+        position the same way."""
+        s = self.settings
+        points_r, normals_r = self._geometry(det, *shifts)
+        group = det["group"]
+        P = odometry.shape[0]
+        poses = odometry.copy()
+        ranges = np.hypot(*(points_r - self.robot_c).T)
+        # the nearest echo in each direction is the line-of-sight candidate
+        los_r = []
+        for g in range(P):
+            members = np.flatnonzero((group == g) & ~ghosts)
+            keep = [i for i in members
+                    if not any(j != i and ranges[j] < ranges[i] - 0.3 and abs(_wrap(det["aoa"][j] - det["aoa"][i])) < math.radians(25)
+                               for j in members)]
+            los_r.append(np.array(keep, int))
+        history_pw, history_nw, history_g = [], [], []
+        var_p = s.point_sigma_m ** 2
+        cos_tol = math.cos(math.radians(s.angle_tolerance_deg))
+        # state [x, y, heading, odometry scale, heading drift per metre]: the odometry's
+        # systematic errors are learned as the robot goes, so the prediction stops drifting
+        # The scale is held at 1 here: along the track the filter has few landmarks and would
+        # wander; the global adjustment estimates it with all of them.
+        mu = np.array([odometry[0][0], odometry[0][1], odometry[0][2], 1.0, 0.0])
+        cov = np.diag([1e-6, 1e-6, 1e-8, 1e-12,
+                       max(2.0 * math.radians(s.odometry_heading_sigma_deg_per_m), math.radians(0.2)) ** 2])
+        for g in range(P):
+            if g > 0:
+                u = _relative(odometry[g - 1], odometry[g])
+                dist = float(np.hypot(u[0], u[1]))
+                c, sn = math.cos(mu[2]), math.sin(mu[2])
+                k, w = mu[3], mu[4]
+                F = np.eye(5)
+                F[0, 2] = -sn * k * u[0] - c * k * u[1]
+                F[1, 2] = c * k * u[0] - sn * k * u[1]
+                F[0, 3] = c * u[0] - sn * u[1]
+                F[1, 3] = sn * u[0] + c * u[1]
+                F[2, 4] = -dist
+                G = np.zeros((5, 3))
+                G[:2, :2] = [[c, -sn], [sn, c]]
+                G[2, 2] = 1.0
+                sig_xy = max(s.odometry_scale_sigma * dist, s.odometry_position_sigma_m)
+                sig_h = math.radians(s.odometry_heading_sigma_deg)
+                Q = np.diag([sig_xy ** 2, sig_xy ** 2, sig_h ** 2])
+                mu[:3] = _compose(mu[:3], np.array([k * u[0], k * u[1], u[2] - w * dist]))
+                cov = F @ cov @ F.T + G @ Q @ G.T
+                idx = los_r[g]
+                if history_pw and idx.size:
+                    hp = np.vstack(history_pw)
+                    hn = np.vstack(history_nw)
+                    hg = np.concatenate(history_g)
+                    recent = hg >= g - 40
+                    hp, hn = hp[recent], hn[recent]
+                    for k_ in idx:
+                        if ranges[k_] > self.SEQUENTIAL_RANGE_M:
+                            continue  # a far echo's lever arm would let its errors steer the heading
+                        pw, nw = self._to_world(points_r[k_:k_ + 1], normals_r[k_:k_ + 1], mu[None, :3], np.zeros(1, int))
+                        pw, nw = pw[0], nw[0]
+                        # a straight wall over the last few metres: a wall does not bend with the
+                        # odometry's heading drift, so a long fit is what shows the drift
+                        d = np.hypot(*(hp - pw).T)
+                        ok = (d < self.SEQUENTIAL_REACH_M) & (hn @ nw > cos_tol) & (np.abs((hp - pw) @ nw) < 0.5)
+                        if np.count_nonzero(ok) < 3:
+                            continue
+                        centre, normal, _ = _line_fit(hp[ok], np.ones(np.count_nonzero(ok)), hn[ok])
+                        if np.sqrt(np.mean(((hp[ok] - centre) @ normal) ** 2)) > s.line_tolerance_m:
+                            continue  # not one straight wall
+                        if abs(normal @ nw) < cos_tol:
+                            continue  # points in a line, but not facing along it: something that moves with the robot
+                        r = float((pw - centre) @ normal)
+                        rel = pw - mu[:2]
+                        H = np.array([normal[0], normal[1], normal @ np.array([-rel[1], rel[0]]), 0.0, 0.0])
+                        S = float(H @ cov @ H) + var_p
+                        if r * r > 9.0 * S:  # a 3-sigma gate against wrong associations
+                            continue
+                        K = cov @ H / S
+                        mu = mu - K * r
+                        mu[2] = math.remainder(mu[2], 2.0 * math.pi)
+                        cov = cov - np.outer(K, H @ cov)
+            poses[g] = mu[:3]
+            idx = los_r[g]
+            if idx.size:
+                pw, nw = self._to_world(points_r[idx], normals_r[idx], mu[None, :3], np.zeros(idx.size, int))
+                history_pw.append(pw)
+                history_nw.append(nw)
+                history_g.append(np.full(idx.size, g))
+        self._sequential_fit = {"odometry_scale": float(mu[3]), "odometry_drift_deg_per_m": math.degrees(mu[4])}
+        return poses
+
+    def _adjust_poses(self, det, odometry, poses, state, wall_cls):
+        """Least-squares adjustment of every pose with the line-of-sight walls and corners as
+        landmarks and the odometry increments as constraints (scipy.optimize.least_squares)."""
+        from scipy.optimize import least_squares
+        from scipy.sparse import lil_matrix
+
+        s = self.settings
+        P = odometry.shape[0]
+        walls = state["walls"]
+        labels = state["labels"]
+        los_walls = [k for k in range(len(walls)) if wall_cls[k] == LOS]
+        wall_slot = {k: j for j, k in enumerate(los_walls)}
+        landmarks = state["landmarks"]
+        obs_w = [i for i in range(labels.size) if labels[i] in wall_slot]
+        obs_c = [(i, j) for j, (_, members) in enumerate(landmarks) for i in members]
+        if len(obs_w) + len(obs_c) < 3:
+            return poses
+        points_r = state["points_r"]
+        normals_r = state["normals_r"]
+        group = det["group"]
+        n_pose = 3 * (P - 1)
+        n_wall = 2 * len(los_walls)
+        n_corner = 2 * len(landmarks)
+        # the odometry's systematic errors, a scale factor and a heading drift per metre, are
+        # estimated with the poses (white per-step noise alone would let a steady drift bend
+        # the map to follow it)
+        x0 = np.concatenate([poses[1:].reshape(-1),
+                             np.array([[math.atan2(walls[k]["normal"][1], walls[k]["normal"][0]),
+                                        walls[k]["centre"] @ walls[k]["normal"]] for k in los_walls]).reshape(-1),
+                             np.array([c for c, _ in landmarks]).reshape(-1), [1.0, 0.0]])
+        steps = [_relative(odometry[g - 1], odometry[g]) for g in range(1, P)]
+        sig_xy = np.array([max(s.odometry_scale_sigma * math.hypot(st[0], st[1]), s.odometry_position_sigma_m) for st in steps])
+        sig_h = np.array([math.radians(s.odometry_heading_sigma_deg_per_m) * math.hypot(st[0], st[1]) +
+                          math.radians(s.odometry_heading_sigma_deg) for st in steps])
+        sigma_p = s.point_sigma_m
+        sigma_o = math.radians(s.orientation_sigma_deg)
+        first = odometry[0]
+        obs_w_arr = np.array(obs_w, int)
+        obs_c_arr = np.array([i for i, _ in obs_c], int)
+        obs_c_lm = np.array([j for _, j in obs_c], int)
+        slot_of = np.array([wall_slot[labels[i]] for i in obs_w], int) if obs_w else np.zeros(0, int)
+
+        def unpack(x):
+            ps = np.vstack((first, x[:n_pose].reshape(-1, 3)))
+            wl = x[n_pose:n_pose + n_wall].reshape(-1, 2)
+            cr = x[n_pose + n_wall:n_pose + n_wall + n_corner].reshape(-1, 2)
+            return ps, wl, cr, x[-2], x[-1]
+
+        steps_arr = np.array(steps).reshape(-1, 3)
+        step_len = np.hypot(steps_arr[:, 0], steps_arr[:, 1])
+        sigma_scale = max(5.0 * s.odometry_scale_sigma, 0.01)
+        sigma_drift = max(5.0 * math.radians(s.odometry_heading_sigma_deg_per_m), math.radians(0.5))
+
+        def residuals(x):
+            ps, wl, cr, scale, drift = unpack(x)
+            a, b = ps[:-1], ps[1:]
+            c, s_ = np.cos(a[:, 2]), np.sin(a[:, 2])
+            d = b[:, :2] - a[:, :2]
+            rel = np.column_stack((c * d[:, 0] + s_ * d[:, 1], -s_ * d[:, 0] + c * d[:, 1]))
+            odo = np.column_stack(((rel[:, 0] - scale * steps_arr[:, 0]) / sig_xy,
+                                   (rel[:, 1] - scale * steps_arr[:, 1]) / sig_xy,
+                                   _wrap(b[:, 2] - a[:, 2] - steps_arr[:, 2] + drift * step_len) / sig_h))
+            out = odo.reshape(-1).tolist()
+            out.extend([(scale - 1.0) / sigma_scale, drift / sigma_drift])
+            if obs_w:
+                pw, nw = self._to_world(points_r[obs_w_arr], normals_r[obs_w_arr], ps, group[obs_w_arr])
+                phi = wl[slot_of, 0]
+                n_ = np.column_stack((np.cos(phi), np.sin(phi)))
+                out.extend(((np.sum(pw * n_, axis=1) - wl[slot_of, 1]) / sigma_p).tolist())
+                # the echoes' orientations tie the map's rotation to the poses' headings (the
+                # points alone leave it free along parallel walls); loosely, as the
+                # estimator's angle errors bias them
+                out.extend((_wrap(np.arctan2(nw[:, 1], nw[:, 0]) - phi) / sigma_o).tolist())
+            if len(obs_c):
+                pw, _ = self._to_world(points_r[obs_c_arr], normals_r[obs_c_arr], ps, group[obs_c_arr])
+                out.extend(((pw - cr[obs_c_lm]) / (2 * sigma_p)).reshape(-1).tolist())
+            return np.array(out)
+
+        m = 3 * (P - 1) + 2 + 2 * len(obs_w) + 2 * len(obs_c)
+        sparsity = lil_matrix((m, x0.size), dtype=int)
+        row = 0
+        for g in range(1, P):
+            for r in range(3):
+                for gg in (g - 1, g):
+                    if gg >= 1:
+                        sparsity[row + r, 3 * (gg - 1):3 * gg] = 1
+                sparsity[row + r, x0.size - 2:] = 1
+            row += 3
+        sparsity[row, x0.size - 2] = 1
+        sparsity[row + 1, x0.size - 1] = 1
+        row += 2
+        for _ in range(2):  # distances, then orientations
+            for o, i in enumerate(obs_w):
+                g = group[i]
+                if g >= 1:
+                    sparsity[row, 3 * (g - 1):3 * g] = 1
+                sparsity[row, n_pose + 2 * slot_of[o]:n_pose + 2 * slot_of[o] + 2] = 1
+                row += 1
+        for o, (i, j) in enumerate(obs_c):
+            g = group[i]
+            for r in range(2):
+                if g >= 1:
+                    sparsity[row + r, 3 * (g - 1):3 * g] = 1
+                sparsity[row + r, n_pose + n_wall + 2 * j:n_pose + n_wall + 2 * j + 2] = 1
+            row += 2
+        solution = least_squares(residuals, x0, jac_sparsity=sparsity.tocsr(), loss="huber", f_scale=3.0,
+                                 x_scale="jac", max_nfev=100, method="trf")
+        ps, _, _, scale, drift = unpack(solution.x)
+        ps[:, 2] = _wrap(ps[:, 2])
+        self._odometry_fit = {"odometry_scale": float(scale), "odometry_drift_deg_per_m": math.degrees(drift)}
+        return ps
+
+    # -- output ----------------------------------------------------------------------------
+    def _assemble(self, det, poses, odometry, state, det_cls, wall_cls, ghosts, frame_indices, stats):
+        s = self.settings
+        walls_in = state["walls"]
+        labels = state["labels"]
+        pw = state["pw"]
+        group = det["group"]
+        # corners: point landmarks on two walls' intersection or on one wall's line
+        corners, scatterers = [], []
+        ends = [[w["t0"], w["t1"]] for w in walls_in]
+        for centre, members in state["landmarks"]:
+            # walls through the landmark: for a pair, their extents may stop short of it by up
+            # to corner_extension_m (a dihedral is evidence that both faces reach it); a lone
+            # wall must already reach within max_gap_m of it
+            near, lone = [], []
+            for k, w in enumerate(walls_in):
+                off = abs((centre - w["centre"]) @ w["normal"])
+                t = (centre - w["centre"]) @ w["direction"]
+                if off > s.corner_wall_distance_m:
+                    continue
+                if w["t0"] - s.corner_extension_m <= t <= w["t1"] + s.corner_extension_m:
+                    near.append(k)
+                if w["t0"] - s.max_gap_m <= t <= w["t1"] + s.max_gap_m:
+                    lone.append(k)
+            pair = None
+            for a in near:
+                for b in near:
+                    if a < b and abs(walls_in[a]["normal"] @ walls_in[b]["normal"]) < math.cos(math.radians(30)):
+                        pair = (a, b)
+            n_poses = int(np.unique(group[members]).size)
+            position = centre
+            if pair is not None:
+                wa, wb = walls_in[pair[0]], walls_in[pair[1]]
+                A = np.vstack((wa["normal"], wb["normal"]))
+                rhs = np.array([wa["centre"] @ wa["normal"], wb["centre"] @ wb["normal"]])
+                intersection = np.linalg.solve(A, rhs)
+                if np.hypot(*(intersection - centre)) <= s.corner_wall_distance_m:
+                    position = intersection
+                else:
+                    pair = None
+            if pair is None and not lone:
+                scatterers.append((centre, n_poses))
+                continue
+            joined = pair if pair is not None else tuple(lone[:1])
+            for k in joined:
+                w = walls_in[k]
+                t = float((position - w["centre"]) @ w["direction"])
+                ends[k][0] = min(ends[k][0], t)
+                ends[k][1] = max(ends[k][1], t)
+            support = min(1.0, n_poses / 8.0)
+            confidence = support * (0.9 if pair is not None else 0.6)
+            cls_votes = [HIDDEN if (state["crossings"][i] or state["blocked"][i]) else LOS for i in members]
+            corners.append(MapCorner(np.asarray(position, float), confidence,
+                                     CLASSES[HIDDEN if np.mean(np.equal(cls_votes, HIDDEN)) > 0.5 else LOS],
+                                     n_poses, tuple(int(k) for k in joined)))
+        walls = []
+        detections = {c: [] for c in CLASSES}
+        echoes = {c: [] for c in CLASSES}
+        for k, w in enumerate(walls_in):
+            members = w["members"]
+            resid = (pw[members] - w["centre"]) @ w["normal"]
+            rms = float(np.sqrt(np.mean(resid ** 2)))
+            n_poses = int(np.unique(group[members]).size)
+            cls = CLASSES[wall_cls[k]]
+            confidence = min(1.0, n_poses / 10.0) * math.exp(-(rms / s.line_tolerance_m) ** 2)
+            if cls == "hidden":
+                confidence *= 0.9  # a return through a wall carries that wall's uncertainty too
+            start = w["centre"] + ends[k][0] * w["direction"]
+            end = w["centre"] + ends[k][1] * w["direction"]
+            walls.append(MapWall(start, end, w["normal"].copy(), cls, float(confidence), n_poses, int(members.size), rms))
+            for i in members:
+                echoes[cls].append(pw[i])
+                detections[cls].append(self._fused_point(w, poses[group[i]], pw[i]))
+        for cls in CLASSES:
+            detections[cls] = np.array(detections[cls]).reshape(-1, 2)
+            echoes[cls] = np.array(echoes[cls]).reshape(-1, 2)
+        stats = dict(stats)
+        stats.update({"echoes": int(det["aoa"].size), "walls": len(walls), "corners": len(corners),
+                      "scatterers": len(scatterers), "ghosts": int(np.count_nonzero(ghosts)),
+                      "wall_echoes": int(np.count_nonzero(labels >= 0)),
+                      "corner_echoes": int(np.count_nonzero(labels == CORNER)),
+                      "unassigned_echoes": int(np.count_nonzero((labels == UNASSIGNED) & ~ghosts))})
+        return FusedMap(walls, corners, scatterers, detections, echoes, poses, odometry, frame_indices, stats)
+
+    def _fused_point(self, wall, pose, measured):
+        """The fitted wall's specular point seen from this pose (image method between the
+        array centres); the measured point projected on the wall when there is none."""
+        p_r, n_r = self._robot_line(wall, pose)
+        try:
+            _, _, point_r = bistatic.specular_path(p_r, n_r, self.tx_c, self.rx_c)
+            point = bistatic.robot_to_world(point_r, pose)
+            if abs((point - wall["centre"]) @ wall["direction"] - (measured - wall["centre"]) @ wall["direction"]) < 1.0:
+                return point
+        except bistatic.GeometryError:
+            pass
+        return measured - ((measured - wall["centre"]) @ wall["normal"]) * wall["normal"]
+
+
+# ----------------------------------------------------------------------------------------
+# Pictures
+# ----------------------------------------------------------------------------------------
+def plot_map(fused, png_path, title=None, truth=None, dpi=120):
+    """A PNG of the map (matplotlib): walls by class (line width by confidence), the fused
+    detections and the measured echoes, corners, the corrected trajectory and the odometry.
+    truth: an optional FORMATS.md map (a dict or a path) drawn faintly underneath."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colours = {"line_of_sight": "tab:blue", "hidden": "tab:orange"}
+    fig, ax = plt.subplots(figsize=(10, 6), dpi=dpi)
+    if truth is not None:
+        if not isinstance(truth, dict):
+            with open(truth, encoding="utf-8") as handle:
+                truth = json.load(handle)
+        for i, f in enumerate(truth.get("features", [])):
+            props = f.get("properties") or {}
+            if props.get("kind") == "wall":
+                xy = np.array(f["geometry"]["coordinates"], float)
+                ax.plot(xy[:, 0], xy[:, 1], "-", color="0.8", lw=5, zorder=0,
+                        label="truth" if i == 0 else None, solid_capstyle="butt")
+    for cls in CLASSES:
+        if cls in fused.echoes and len(fused.echoes[cls]):
+            e = fused.echoes[cls]
+            ax.plot(e[:, 0], e[:, 1], ".", ms=3, color=colours[cls], alpha=0.35,
+                    label=f"echoes ({cls.replace('_', ' ')})")
+    labelled = set()
+    for w in fused.walls:
+        xy = np.vstack((w.start_m, w.end_m))
+        label = None if w.cls in labelled else f"wall, {w.cls.replace('_', ' ')}"
+        labelled.add(w.cls)
+        ax.plot(xy[:, 0], xy[:, 1], "-", color=colours[w.cls], lw=1.0 + 2.5 * w.confidence, label=label)
+    for cls in CLASSES:
+        if cls in fused.detections and len(fused.detections[cls]):
+            d = fused.detections[cls]
+            ax.plot(d[:, 0], d[:, 1], "x", ms=4, color=colours[cls], mew=1.0)
+    for i, c in enumerate(fused.corners):
+        ax.plot(*c.position_m, "s", ms=8, mfc="none", mec="tab:red", mew=2, label="corner" if i == 0 else None)
+    for i, (p, _) in enumerate(fused.scatterers):
+        ax.plot(*p, "d", ms=5, color="tab:gray", label="point scatterer" if i == 0 else None)
+    if len(fused.odometry) > 1:
+        ax.plot(fused.odometry[:, 0], fused.odometry[:, 1], "--", color="tab:gray", lw=1, label="odometry")
+    if len(fused.trajectory):
+        t = fused.trajectory
+        ax.plot(t[:, 0], t[:, 1], "-", color="k", lw=1.2, marker=".", ms=3,
+                label="trajectory (corrected)" if fused.stats.get("poses_corrected") else "trajectory")
+    ax.set_aspect("equal")
+    ax.grid(True, lw=0.3)
+    ax.set_xlabel("x (m, world)")
+    ax.set_ylabel("y (m, world)")
+    ax.set_title(title or f"thrumapper map: {len(fused.walls)} walls, {len(fused.corners)} corners, "
+                          f"{len(fused.trajectory)} poses")
+    ax.legend(loc="best", fontsize=7, framealpha=0.8)
+    fig.tight_layout()
+    fig.savefig(png_path)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------------------------
+# The GNU Radio block
+# ----------------------------------------------------------------------------------------
+import pmt  # noqa: E402  (the block below is the only user)
+from gnuradio import gr  # noqa: E402
+
+_KEY_FRAME_INDEX = pmt.intern("frame_index")
+_KEY_POSE = pmt.intern("pose")
+_KEY_PATHS = pmt.intern("paths")
+_PORT_PATHS = pmt.intern("paths")
+_PORT_POSE = pmt.intern("pose")
+_PORT_MAP = pmt.intern("map")
+
+
+def _pmt_number(value):
+    return pmt.to_double(value) if pmt.is_number(value) else float("nan")
+
+
+def paths_from_pmt(msg):
+    """(frame_index or None, pose (3,) or None, [path dicts]) from a jade_estimator "paths"
+    message. Raises FusionError on a message that is not such a dict."""
+    if not pmt.is_dict(msg):
+        raise FusionError("paths message: expected a dict with \"paths\" (jade_estimator's message)")
+    frame_index = None
+    if pmt.dict_has_key(msg, _KEY_FRAME_INDEX):
+        value = pmt.dict_ref(msg, _KEY_FRAME_INDEX, pmt.PMT_NIL)
+        if pmt.is_integer(value) or pmt.is_uint64(value):
+            frame_index = int(pmt.to_uint64(value)) if pmt.is_uint64(value) else int(pmt.to_long(value))
+    pose = None
+    if pmt.dict_has_key(msg, _KEY_POSE):
+        value = pmt.dict_ref(msg, _KEY_POSE, pmt.PMT_NIL)
+        if pmt.is_f64vector(value) and pmt.length(value) == 3:
+            pose = np.array(pmt.f64vector_elements(value), float)
+    if not pmt.dict_has_key(msg, _KEY_PATHS):
+        raise FusionError("paths message: no \"paths\" entry")
+    vector = pmt.dict_ref(msg, _KEY_PATHS, pmt.PMT_NIL)
+    if not pmt.is_vector(vector):
+        raise FusionError("paths message: \"paths\" is not a PMT vector of dicts")
+    paths = []
+    for i in range(pmt.length(vector)):
+        item = pmt.vector_ref(vector, i)
+        if not pmt.is_dict(item):
+            raise FusionError(f"paths message: paths[{i}] is not a dict")
+        entry = {}
+        for key in ("angle_deg", "aoa_deg", "delay_s", "power", "spectrum_db"):
+            k = pmt.intern(key)
+            if pmt.dict_has_key(item, k):
+                entry[key] = _pmt_number(pmt.dict_ref(item, k, pmt.PMT_NIL))
+        k = pmt.intern("stage")
+        if pmt.dict_has_key(item, k):
+            stage = pmt.dict_ref(item, k, pmt.PMT_NIL)
+            entry["stage"] = int(pmt.to_long(stage)) if pmt.is_integer(stage) else 0
+        paths.append(entry)
+    return frame_index, pose, paths
+
+
+def map_to_pmt(fused):
+    """The map as a PMT dict: num_poses, walls (vector of dicts: class, confidence, start,
+    end, num_poses), corners (vector of dicts: position, confidence, class), detections (dict
+    class -> f64vector x0, y0, x1, y1, ...), trajectory (f64vector x, y, heading per pose),
+    stats (dict of numbers)."""
+    def f64(values):
+        values = [float(v) for v in np.asarray(values, float).reshape(-1)]
+        return pmt.init_f64vector(len(values), values)
+
+    walls = pmt.make_vector(len(fused.walls), pmt.PMT_NIL)
+    for i, w in enumerate(fused.walls):
+        d = pmt.make_dict()
+        d = pmt.dict_add(d, pmt.intern("class"), pmt.intern(w.cls))
+        d = pmt.dict_add(d, pmt.intern("confidence"), pmt.from_double(float(w.confidence)))
+        d = pmt.dict_add(d, pmt.intern("start"), f64(w.start_m))
+        d = pmt.dict_add(d, pmt.intern("end"), f64(w.end_m))
+        d = pmt.dict_add(d, pmt.intern("num_poses"), pmt.from_long(int(w.num_poses)))
+        pmt.vector_set(walls, i, d)
+    corners = pmt.make_vector(len(fused.corners), pmt.PMT_NIL)
+    for i, c in enumerate(fused.corners):
+        d = pmt.make_dict()
+        d = pmt.dict_add(d, pmt.intern("position"), f64(c.position_m))
+        d = pmt.dict_add(d, pmt.intern("confidence"), pmt.from_double(float(c.confidence)))
+        d = pmt.dict_add(d, pmt.intern("class"), pmt.intern(c.cls))
+        pmt.vector_set(corners, i, d)
+    detections = pmt.make_dict()
+    for cls in CLASSES:
+        detections = pmt.dict_add(detections, pmt.intern(cls), f64(fused.detections.get(cls, np.zeros((0, 2)))))
+    stats = pmt.make_dict()
+    for key, value in fused.stats.items():
+        if isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool):
+            stats = pmt.dict_add(stats, pmt.intern(str(key)), pmt.from_double(float(value)))
+    msg = pmt.make_dict()
+    msg = pmt.dict_add(msg, pmt.intern("num_poses"), pmt.from_long(len(fused.trajectory)))
+    msg = pmt.dict_add(msg, pmt.intern("walls"), walls)
+    msg = pmt.dict_add(msg, pmt.intern("corners"), corners)
+    msg = pmt.dict_add(msg, pmt.intern("detections"), detections)
+    msg = pmt.dict_add(msg, pmt.intern("trajectory"), f64(fused.trajectory))
+    msg = pmt.dict_add(msg, pmt.intern("stats"), stats)
+    return msg
+
+
+class wall_fusion(gr.basic_block):
+    """Wall fusion: jade_estimator's "paths" messages and survey_source's "pose" messages in,
+    the floor plan out (docs/mapping.md).
+
+    Message inputs:
+      paths  jade_estimator's per-frame dict {frame_index, pose (when tagged), model_order,
+             paths: vector of {angle_deg, delay_s, power, spectrum_db, stage}}
+      pose   {frame_index, pose: f64vector [x, y, heading], x, y, heading}, or any form
+             survey_sink accepts, in frame order: for frames without a pose tag. When
+             replaying a survey leave it unconnected (the tags reach the fusion through
+             jade_estimator; GNU Radio ends a message-only block once an upstream block has
+             finished, and the source finishes first)
+    Message output:
+      map    a dict (map_to_pmt) every update_interval new poses, and when the flowgraph stops
+
+    A frame takes the pose tagged on it, else the latest pose message whose frame_index is not
+    after its own. Frames whose pose is unknown wait for it; those still waiting at the end,
+    and malformed messages, poses out of order and echoes with NaN or earlier than the direct
+    path are skipped and counted (skipped_counts()).
+
+    geojson_path, png_path: written when the flowgraph stops (and at every update when
+    write_every_update). radar: a thrumapper.radar_description (its TX weights shape the slab
+    model); None means the ThruMapper UCA pair with unit weights.
+    """
+
+    def __init__(self, radar=None, material="plasterboard", update_interval=10, geojson_path="", png_path="",
+                 correct_poses=True, max_range_m=8.0, min_excess_delay_s=0.8e-9, write_every_update=False):
+        gr.basic_block.__init__(self, name="wall_fusion", in_sig=None, out_sig=None)
+        if int(update_interval) < 1:
+            raise FusionError(f"update_interval: expected at least 1 pose, got {update_interval}")
+        geometry = RadarGeometry.uca_pair() if radar is None else (
+            radar if isinstance(radar, RadarGeometry) else RadarGeometry.from_radar(radar))
+        material = None if material in (None, "", "none") else material
+        settings = FusionSettings(material=material, correct_poses=bool(correct_poses), max_range_m=float(max_range_m),
+                                  min_excess_delay_s=float(min_excess_delay_s))
+        self._fusion = WallFusion(geometry, settings)
+        self._update_interval = int(update_interval)
+        self._geojson_path = geojson_path or ""
+        self._png_path = png_path or ""
+        self._write_every_update = bool(write_every_update)
+        self._lock = threading.Lock()
+        self._poses = []  # (frame_index or None, pose), arrival (= frame) order
+        self._pending = []  # (frame_index, paths) waiting for their pose
+        self._last_map = None
+        self._poses_at_last_map = 0
+        self._skipped = {"malformed": 0, "stale_pose": 0, "no_pose": 0}
+        self._warnings = 0
+        self.message_port_register_in(_PORT_PATHS)
+        self.set_msg_handler(_PORT_PATHS, self._on_paths)
+        self.message_port_register_in(_PORT_POSE)
+        self.set_msg_handler(_PORT_POSE, self._on_pose)
+        self.message_port_register_out(_PORT_MAP)
+
+    # -- messages --------------------------------------------------------------------------
+    def _warn(self, text):
+        # the first warnings, then every 1000th: a stream of bad messages must not flood the log
+        self._warnings += 1
+        if self._warnings <= 10 or self._warnings % 1000 == 0:
+            self.logger.warn(f"{text} ({self._warnings} warnings so far)")
+
+    def _on_pose(self, msg):
+        from .survey_blocks import pose_from_pmt
+
+        pose = pose_from_pmt(msg)
+        if pose is None:
+            with self._lock:
+                self._skipped["malformed"] += 1
+            self._warn("wall_fusion: a pose message without a finite [x, y, heading]; skipped")
+            return
+        frame_index = None
+        if pmt.is_dict(msg) and pmt.dict_has_key(msg, _KEY_FRAME_INDEX):
+            value = pmt.dict_ref(msg, _KEY_FRAME_INDEX, pmt.PMT_NIL)
+            if pmt.is_uint64(value):
+                frame_index = int(pmt.to_uint64(value))
+            elif pmt.is_integer(value):
+                frame_index = int(pmt.to_long(value))
+        with self._lock:
+            if self._poses and frame_index is not None and self._poses[-1][0] is not None \
+                    and frame_index < self._poses[-1][0]:
+                self._skipped["stale_pose"] += 1
+                self._warn(f"wall_fusion: pose for frame {frame_index} after frame {self._poses[-1][0]}'s; skipped")
+                return
+            self._poses.append((frame_index, pose))
+            # frames that waited for a pose, now that a later pose bounds theirs
+            waiting, self._pending = self._pending, []
+            for index, paths in waiting:
+                if index is None or frame_index is None or index < frame_index:
+                    self._consume(index, None, paths)
+                else:
+                    self._pending.append((index, paths))
+        self._maybe_update()
+
+    def _pose_for(self, frame_index):
+        """The latest pose whose frame_index is not after frame_index (None when unknown)."""
+        best = None
+        for index, pose in self._poses:
+            if index is None or frame_index is None or index <= frame_index:
+                best = pose
+            else:
+                break
+        return best
+
+    def _consume(self, frame_index, pose, paths):
+        if pose is None:
+            pose = self._pose_for(frame_index)
+        if pose is None:
+            self._skipped["no_pose"] += 1
+            return
+        try:
+            self._fusion.add(pose, paths, frame_index)
+        except FusionError as err:
+            self._skipped["malformed"] += 1
+            self._warn(f"wall_fusion: {err}")
+
+    def _on_paths(self, msg):
+        try:
+            frame_index, pose, paths = paths_from_pmt(msg)
+        except FusionError as err:
+            with self._lock:
+                self._skipped["malformed"] += 1
+            self._warn(f"wall_fusion: {err}; skipped")
+            return
+        with self._lock:
+            if pose is not None:
+                self._consume(frame_index, pose, paths)
+            elif not self._poses:
+                self._pending.append((frame_index, paths))
+            else:
+                last_index = self._poses[-1][0]
+                if frame_index is not None and last_index is not None and frame_index > last_index:
+                    # a pose message for a frame up to this one may still be on its way: the
+                    # next pose message settles it (or the end of the stream)
+                    self._pending.append((frame_index, paths))
+                else:
+                    self._consume(frame_index, None, paths)
+        self._maybe_update()
+
+    # -- the map ---------------------------------------------------------------------------
+    def _maybe_update(self):
+        with self._lock:
+            due = self._fusion.num_poses - self._poses_at_last_map >= self._update_interval
+        if due:
+            self.update_map()
+
+    def update_map(self):
+        """Build the map now, publish it on "map" and return it (a FusedMap)."""
+        with self._lock:
+            fused = self._fusion.build_map()
+            fused.stats.update({f"skipped_{k}": v for k, v in self._skipped.items()})
+            self._last_map = fused
+            self._poses_at_last_map = self._fusion.num_poses
+        self.message_port_pub(_PORT_MAP, map_to_pmt(fused))
+        if self._write_every_update:
+            self.write_files()
+        return fused
+
+    def write_files(self):
+        with self._lock:
+            fused = self._last_map
+        if fused is None:
+            return
+        if self._geojson_path:
+            fused.write_geojson(self._geojson_path)
+        if self._png_path:
+            plot_map(fused, self._png_path)
+
+    def stop(self):
+        with self._lock:
+            waiting, self._pending = self._pending, []
+            for index, paths in waiting:  # the end of the stream bounds every pose
+                self._consume(index, None, paths)
+            if not self._fusion.num_poses and not self._poses:
+                self._warn("wall_fusion: no pose arrived; the map is empty (connect survey_source's \"pose\" port)")
+        self.update_map()
+        self.write_files()
+        return True
+
+    # -- accessors -------------------------------------------------------------------------
+    def num_poses(self):
+        with self._lock:
+            return self._fusion.num_poses
+
+    def skipped_counts(self):
+        """Messages and echoes skipped, by reason."""
+        with self._lock:
+            counts = dict(self._skipped)
+            counts.update({k: v for k, v in self._fusion.counts.items() if k.startswith("skipped")})
+            return counts
+
+    def num_skipped(self):
+        return int(sum(self.skipped_counts().values()))
+
+    def last_map(self):
+        """The last FusedMap built (None before the first)."""
+        with self._lock:
+            return self._last_map
+
+    def map_geojson(self):
+        """The last map as a GeoJSON string ("" before the first)."""
+        fused = self.last_map()
+        return "" if fused is None else json.dumps(fused.to_geojson())
