@@ -6,7 +6,6 @@
 against the simulated building's exact wideband channel."""
 
 import math
-import time
 
 import numpy as np
 import pmt
@@ -14,15 +13,9 @@ from gnuradio import blocks, gr, gr_unittest
 
 from gnuradio import thrumapper
 from gnuradio.thrumapper import building_sim, scene
+from gnuradio.thrumapper.testing import wait_for
 
 
-def wait_for(predicate, timeout_s=10.0):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return predicate()
 
 
 def free_space_scene(**extra):

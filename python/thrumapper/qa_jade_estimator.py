@@ -5,25 +5,17 @@
 """QA of the jade_estimator block: frames in, spectra and path messages out."""
 
 import math
-import time
 
 import numpy as np
 import pmt
 from gnuradio import blocks, gr, gr_unittest
 
 from gnuradio import thrumapper
+from gnuradio.thrumapper.testing import wait_for
 
 C = thrumapper.speed_of_light_m_s
 
 
-def wait_for(predicate, timeout_s=10.0):
-    """Poll until predicate() holds (the flowgraph runs in its own threads)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return predicate()
 
 
 def model_frame(radar, paths, noise_std=0.0, rng=None):

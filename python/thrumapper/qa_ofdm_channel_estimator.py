@@ -11,16 +11,9 @@ import pmt
 from gnuradio import blocks, gr, gr_unittest
 
 from gnuradio import thrumapper
+from gnuradio.thrumapper.testing import wait_for
 
 
-def wait_for(predicate, timeout_s=10.0):
-    """Poll until predicate() holds (the flowgraph runs in its own threads)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return predicate()
 
 
 class SyntheticChannel:

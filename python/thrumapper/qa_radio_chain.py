@@ -9,7 +9,6 @@ import json
 import math
 import os
 import tempfile
-import time
 
 import numpy as np
 import pmt
@@ -17,18 +16,11 @@ from gnuradio import blocks, gr, gr_unittest
 
 from gnuradio import thrumapper
 from gnuradio.thrumapper import building_sim, scene as scene_mod
+from gnuradio.thrumapper.testing import wait_for
 
 NMSE_LIMIT_DB = -30.0
 
 
-def wait_for(predicate, timeout_s=20.0):
-    """Poll until predicate() holds (the flowgraph runs in its own threads)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.01)
-    return predicate()
 
 
 def impaired_scene(**extra):
@@ -113,7 +105,7 @@ class qa_radio_chain(gr_unittest.TestCase):
         self.assertEqual(est.num_missing_preamble(), 0)
         self.assertEqual(csi.shape[0], n_ref + 2 * per_pose)
         self.assertEqual(cal.num_calibrations(), 1)
-        self.assertTrue(wait_for(lambda: coefficients.num_messages() == 1))
+        self.assertTrue(wait_for(timeout_s=20.0, predicate=lambda: coefficients.num_messages() == 1))
 
         # the frames' tags: reference frames first, then survey frames with their true pose
         tags = {}
@@ -181,7 +173,7 @@ class qa_radio_chain(gr_unittest.TestCase):
             self.tb.start()
             try:
                 cal._post(pmt.intern("calibrate"), pmt.PMT_T)
-                self.assertTrue(wait_for(lambda: debug.num_messages() >= 1))
+                self.assertTrue(wait_for(timeout_s=20.0, predicate=lambda: debug.num_messages() >= 1))
             finally:
                 self.tb.stop()
                 self.tb.wait()
@@ -229,7 +221,7 @@ class qa_radio_chain(gr_unittest.TestCase):
             self.tb.connect(src, (cal, m), sinks[-1])
         self.tb.msg_connect((cal, "coefficients"), (debug, "store"))
         self.tb.run()
-        self.assertTrue(wait_for(lambda: debug.num_messages() == 2))
+        self.assertTrue(wait_for(timeout_s=20.0, predicate=lambda: debug.num_messages() == 2))
         self.assertEqual(cal.num_calibrations(), 2)
         for index, truth in ((0, first), (1, second)):
             msg = debug.get_message(index)
@@ -289,7 +281,7 @@ class qa_radio_chain(gr_unittest.TestCase):
         moved = np.array([0.5, -0.1, 0.2])
         self.tb.start()
         try:
-            self.assertTrue(wait_for(lambda: len(sink.data()) >= M * N))
+            self.assertTrue(wait_for(timeout_s=20.0, predicate=lambda: len(sink.data()) >= M * N))
             msg = pmt.dict_add(pmt.make_dict(), pmt.intern("pose"), pmt.init_f64vector(3, list(moved)))
             channel._post(pmt.intern("pose"), msg)
             channel._post(pmt.intern("pose"), pmt.intern("not a pose"))  # logged, ignored
@@ -298,7 +290,7 @@ class qa_radio_chain(gr_unittest.TestCase):
                 return [t.offset for t in sink.tags() if pmt.symbol_to_string(t.key) == "pose"
                         and np.allclose(pmt.f64vector_elements(t.value), moved)]
 
-            self.assertTrue(wait_for(lambda: moved_frames() and len(sink.data()) >= (moved_frames()[0] + 3) * M * N))
+            self.assertTrue(wait_for(timeout_s=20.0, predicate=lambda: moved_frames() and len(sink.data()) >= (moved_frames()[0] + 3) * M * N))
         finally:
             self.tb.stop()
             self.tb.wait()
