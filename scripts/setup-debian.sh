@@ -26,7 +26,7 @@ PACKAGES=(
   python3 python3-dev python3-venv python3-pip
   python3-numpy python3-scipy python3-matplotlib python3-yaml python3-tqdm
   python3-jsonschema python3-defusedxml python3-pyqt5 python3-zmq
-  xvfb xauth
+  xvfb xauth imagemagick
 )
 missing=()
 for p in "${PACKAGES[@]}"; do

@@ -18,3 +18,4 @@ from .survey_blocks import survey_source, survey_sink
 from .building_channel import building_channel
 from .iq_recording import iq_sink, iq_source
 from .wall_fusion import wall_fusion, WallFusion, FusionSettings, RadarGeometry, FusedMap
+from .live_map import live_map
