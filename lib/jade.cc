@@ -2,6 +2,7 @@
 /*
  * SPDX-License-Identifier: GPL-3.0-or-later
  */
+#include "angles.h"
 #include <gnuradio/thrumapper/jade.h>
 #include <gnuradio/thrumapper/manifold.h>
 #include <gnuradio/thrumapper/projection.h>
@@ -755,9 +756,8 @@ std::vector<jade_path> jade::estimate_once(const Eigen::MatrixXcd& frames, int m
         th = wrap_angle(th);
         bool duplicate = false;
         for (const auto& q : paths) {
-            double dth = std::abs(q.aoa_rad - th);
-            dth = std::min(dth, two_pi - dth);
-            if (dth < merge_angle && std::abs(q.delay_s + d_system_delay_s - tau) < merge_delay)
+            if (angle_distance(q.aoa_rad, th) < merge_angle &&
+                std::abs(q.delay_s + d_system_delay_s - tau) < merge_delay)
                 duplicate = true;
         }
         if (duplicate)
@@ -820,9 +820,8 @@ std::vector<jade_path> jade::estimate_matrix(const Eigen::MatrixXcd& frames)
             // what its imperfect cancellation left, not a new echo
             bool again = false;
             for (const auto& q : found) {
-                double dth = std::abs(q.aoa_rad - p.aoa_rad);
-                dth = std::min(dth, two_pi - dth);
-                const double a = dth / (5 * M_PI / 180), d = (q.delay_s - p.delay_s) / 1e-9;
+                const double a = angle_distance(q.aoa_rad, p.aoa_rad) / (5 * M_PI / 180);
+                const double d = (q.delay_s - p.delay_s) / 1e-9;
                 if (a * a + d * d < 1)
                     again = true;
             }

@@ -133,12 +133,10 @@ int jade_estimator_impl::general_work(int noutput_items,
         const uint64_t abs_in = nitems_read(0) + i;
         std::vector<tag_t> tags;
         get_tags_in_range(tags, 0, abs_in, abs_in + 1);
-        uint64_t frame_index = d_frame_counter++;
+        uint64_t frame_index = d_frame_counter;
         pmt::pmt_t rx_time = pmt::PMT_NIL, pose = pmt::PMT_NIL;
         for (const auto& t : tags) {
-            if (pmt::eqv(t.key, k_frame_index) && pmt::is_integer(t.value))
-                frame_index = pmt::to_uint64(t.value);
-            else if (pmt::eqv(t.key, k_frame_index) && pmt::is_uint64(t.value))
+            if (pmt::eqv(t.key, k_frame_index) && (pmt::is_integer(t.value) || pmt::is_uint64(t.value)))
                 frame_index = pmt::to_uint64(t.value);
             else if (pmt::eqv(t.key, k_rx_time))
                 rx_time = t.value;
@@ -146,6 +144,8 @@ int jade_estimator_impl::general_work(int noutput_items,
                 pose = t.value;
         }
 
+        // untagged frames count on from the last index seen, skipped frames included
+        d_frame_counter = frame_index + 1;
         std::vector<jade_path> paths;
         int order = 0;
         try {

@@ -2,6 +2,7 @@
 /*
  * SPDX-License-Identifier: GPL-3.0-or-later
  */
+#include "angles.h"
 #include <gnuradio/thrumapper/null_steering.h>
 #include <cmath>
 #include <stdexcept>
@@ -11,14 +12,6 @@ namespace gr {
 namespace thrumapper {
 
 using cd = std::complex<double>;
-
-namespace {
-double angle_distance(double a, double b)
-{
-    double d = std::fmod(std::abs(a - b), 2 * M_PI);
-    return std::min(d, 2 * M_PI - d);
-}
-} // namespace
 
 null_steering::null_steering(radar_description::sptr radar) : d_radar(radar)
 {

@@ -2,6 +2,7 @@
 /*
  * SPDX-License-Identifier: GPL-3.0-or-later
  */
+#include "angles.h"
 #include <gnuradio/io_signature.h>
 #include <gnuradio/thrumapper/null_steering.h>
 #include <gnuradio/thrumapper/null_steering_weights.h>
@@ -20,9 +21,12 @@ class null_steering_weights_impl : public null_steering_weights
     const std::chrono::duration<double> d_period;
     mutable std::mutex d_mutex;
     std::condition_variable d_cv;
-    double d_main_lobe_deg;
-    bool d_null_receiver;
-    std::vector<double> d_null_angles_deg;
+    struct design_spec {
+        double main_lobe_deg;
+        bool null_receiver;
+        std::vector<double> null_angles_deg;
+    };
+    design_spec d_spec;
     std::vector<gr_complex> d_weights;
     std::vector<float> d_pattern_db;
     bool d_changed = true;
@@ -30,20 +34,12 @@ class null_steering_weights_impl : public null_steering_weights
     std::chrono::steady_clock::time_point d_last_output;
     const pmt::pmt_t d_port;
 
-    static std::vector<double> radians(const std::vector<double>& deg)
-    {
-        std::vector<double> r;
-        for (double d : deg)
-            r.push_back(d * M_PI / 180.0);
-        return r;
-    }
-
     // Design the weights and their pattern; callers hold no lock (the design may throw,
     // leaving the current weights in place).
-    void redesign(double main_lobe_deg, bool null_receiver, const std::vector<double>& nulls_deg)
+    void redesign(const design_spec& spec)
     {
-        const std::vector<gr_complex> w =
-            d_design.design(main_lobe_deg * M_PI / 180.0, radians(nulls_deg), null_receiver);
+        const std::vector<gr_complex> w = d_design.design(
+            spec.main_lobe_deg * M_PI / 180.0, degrees_to_radians(spec.null_angles_deg), spec.null_receiver);
         std::vector<double> angles(d_num_angles), freqs;
         for (int i = 0; i < d_num_angles; i++)
             angles[i] = 2 * M_PI * i / d_num_angles;
@@ -56,9 +52,7 @@ class null_steering_weights_impl : public null_steering_weights
             pattern[j] = float(10 * std::log10((g.col(j).array() / 10 * std::log(10.0)).exp().mean()));
         {
             std::lock_guard<std::mutex> lock(d_mutex);
-            d_main_lobe_deg = main_lobe_deg;
-            d_null_receiver = null_receiver;
-            d_null_angles_deg = nulls_deg;
+            d_spec = spec;
             d_weights = w;
             d_pattern_db = pattern;
             d_changed = true;
@@ -73,10 +67,10 @@ class null_steering_weights_impl : public null_steering_weights
         {
             std::lock_guard<std::mutex> lock(d_mutex);
             msg = pmt::dict_add(msg, pmt::mp("weights"), pmt::init_c32vector(d_weights.size(), d_weights));
-            msg = pmt::dict_add(msg, pmt::mp("main_lobe_deg"), pmt::from_double(d_main_lobe_deg));
+            msg = pmt::dict_add(msg, pmt::mp("main_lobe_deg"), pmt::from_double(d_spec.main_lobe_deg));
             msg = pmt::dict_add(msg, pmt::mp("null_angles_deg"),
-                                pmt::init_f64vector(d_null_angles_deg.size(), d_null_angles_deg));
-            msg = pmt::dict_add(msg, pmt::mp("null_receiver"), pmt::from_bool(d_null_receiver));
+                                pmt::init_f64vector(d_spec.null_angles_deg.size(), d_spec.null_angles_deg));
+            msg = pmt::dict_add(msg, pmt::mp("null_receiver"), pmt::from_bool(d_spec.null_receiver));
             msg = pmt::dict_add(msg, pmt::mp("coupling_db"), pmt::from_double(d_design.coupling_db(d_weights)));
         }
         message_port_pub(d_port, msg);
@@ -102,7 +96,7 @@ public:
         if (!(update_period_s > 0) || !std::isfinite(update_period_s))
             throw std::invalid_argument("null_steering_weights: update_period_s must be positive");
         message_port_register_out(d_port);
-        redesign(main_lobe_deg, null_receiver, null_angles_deg);
+        redesign({ main_lobe_deg, null_receiver, null_angles_deg });
     }
 
     bool start() override
@@ -143,40 +137,32 @@ public:
         return 1;
     }
 
+    // A copy of the current spec with one field changed: a failed design leaves it as it was.
+    design_spec current_spec() const
+    {
+        std::lock_guard<std::mutex> lock(d_mutex);
+        return d_spec;
+    }
+
     void set_main_lobe(double main_lobe_deg) override
     {
-        bool nr;
-        std::vector<double> n;
-        {
-            std::lock_guard<std::mutex> lock(d_mutex);
-            nr = d_null_receiver;
-            n = d_null_angles_deg;
-        }
-        redesign(main_lobe_deg, nr, n);
+        design_spec spec = current_spec();
+        spec.main_lobe_deg = main_lobe_deg;
+        redesign(spec);
     }
 
     void set_null_angles(const std::vector<double>& null_angles_deg) override
     {
-        double ml;
-        bool nr;
-        {
-            std::lock_guard<std::mutex> lock(d_mutex);
-            ml = d_main_lobe_deg;
-            nr = d_null_receiver;
-        }
-        redesign(ml, nr, null_angles_deg);
+        design_spec spec = current_spec();
+        spec.null_angles_deg = null_angles_deg;
+        redesign(spec);
     }
 
     void set_null_receiver(bool null_receiver) override
     {
-        double ml;
-        std::vector<double> n;
-        {
-            std::lock_guard<std::mutex> lock(d_mutex);
-            ml = d_main_lobe_deg;
-            n = d_null_angles_deg;
-        }
-        redesign(ml, null_receiver, n);
+        design_spec spec = current_spec();
+        spec.null_receiver = null_receiver;
+        redesign(spec);
     }
 
     std::vector<gr_complex> weights() const override

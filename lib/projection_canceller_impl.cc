@@ -2,6 +2,7 @@
 /*
  * SPDX-License-Identifier: GPL-3.0-or-later
  */
+#include "angles.h"
 #include <gnuradio/io_signature.h>
 #include <gnuradio/thrumapper/projection.h>
 #include <gnuradio/thrumapper/projection_canceller.h>
@@ -21,14 +22,6 @@ class projection_canceller_impl : public projection_canceller
     const pmt::pmt_t k_tx_weights = pmt::mp("tx_weights");
     std::atomic<uint64_t> d_skipped{ 0 };
     std::atomic<uint64_t> d_bad_messages{ 0 };
-
-    static std::vector<double> radians(const std::vector<double>& deg)
-    {
-        std::vector<double> r;
-        for (double d : deg)
-            r.push_back(d * M_PI / 180.0);
-        return r;
-    }
 
     void bad_message(const std::string& why)
     {
@@ -54,16 +47,16 @@ class projection_canceller_impl : public projection_canceller
             d_proj.set_paths({}, {});
             return;
         }
+        if (!pmt::dict_has_key(msg, pmt::mp("paths")))
+            return bad_message("the dict has no \"paths\" key");
         const pmt::pmt_t paths = pmt::dict_ref(msg, pmt::mp("paths"), pmt::PMT_NIL);
         std::vector<pmt::pmt_t> items;
         if (pmt::is_vector(paths)) {
             for (size_t i = 0; i < pmt::length(paths); i++)
                 items.push_back(pmt::vector_ref(paths, i));
-        } else if (pmt::is_pair(paths) || pmt::is_null(paths)) {
+        } else if (pmt::is_pair(paths) || pmt::is_null(paths)) { // a list; nil is the empty one
             for (pmt::pmt_t p = paths; pmt::is_pair(p); p = pmt::cdr(p))
                 items.push_back(pmt::car(p));
-            if (pmt::is_null(paths) && !pmt::dict_has_key(msg, pmt::mp("paths")))
-                return bad_message("the dict has no \"paths\" key");
         } else {
             return bad_message("\"paths\" must be a vector or list of dicts");
         }
@@ -122,7 +115,7 @@ public:
           d_proj(radar)
     {
         d_proj.set_system_delay(system_delay_s);
-        d_proj.set_paths(radians(aoa_deg), delay_s);
+        d_proj.set_paths(degrees_to_radians(aoa_deg), delay_s);
         d_proj.set_direct_path(cancel_direct);
         message_port_register_in(pmt::mp("paths"));
         set_msg_handler(pmt::mp("paths"), [this](const pmt::pmt_t& m) { handle_paths(m); });
@@ -197,7 +190,7 @@ public:
     void set_paths(const std::vector<double>& aoa_deg, const std::vector<double>& delay_s) override
     {
         std::lock_guard<std::mutex> lock(d_mutex);
-        d_proj.set_paths(radians(aoa_deg), delay_s);
+        d_proj.set_paths(degrees_to_radians(aoa_deg), delay_s);
     }
     void set_cancel_direct(bool cancel_direct) override
     {

@@ -80,6 +80,8 @@ class qa_jade_estimator(gr_unittest.TestCase):
         self.assertEqual(pmt.to_uint64(pmt.dict_ref(second, pmt.intern("frame_index"), pmt.PMT_NIL)), 41)
         self.assertTrue(pmt.equal(pmt.dict_ref(second, pmt.intern("rx_time"), pmt.PMT_NIL), rx_time))
         self.assertFalse(pmt.dict_has_key(msgs.get_message(0), pmt.intern("rx_time")))
+        third = msgs.get_message(2)
+        self.assertEqual(pmt.to_uint64(pmt.dict_ref(third, pmt.intern("frame_index"), pmt.PMT_NIL)), 42)
         # the spectrum's highest cell is next to the strongest path
         s = np.array(spectra.data()[:180 * 81]).reshape(180, 81)
         a, d = np.unravel_index(np.argmax(s), s.shape)
