@@ -60,6 +60,9 @@ def build_parser():
     p.add_argument("--angles", type=int, default=360, help="JADE's angle grid size (default 360)")
     p.add_argument("--delays", type=int, default=240, help="JADE's delay grid size (default 240)")
     p.add_argument("--no-pose-correction", action="store_true", help="keep the odometry's poses")
+    p.add_argument("--no-csi-refinement", action="store_true",
+                   help="keep the walls fused from JADE's paths (default: refine each wall on the CSI with the "
+                        "slab echo model, docs/mapping.md)")
     p.add_argument("--detections", choices=("fused", "measured"), default="fused",
                    help="detections written as the fused reflection points on the walls (default) or as "
                         "the measured echoes (the other set is written too, as kind \"echoes\")")
@@ -83,7 +86,8 @@ def jade_settings(paths=8, stages=1, max_delay_s=60e-9, angles=360, delays=240):
     return settings
 
 
-def map_survey(survey, fusion_settings=None, settings=None, system_delay_s=None, progress=None, timings=None):
+def map_survey(survey, fusion_settings=None, settings=None, system_delay_s=None, progress=None, timings=None,
+               refine_on_csi=True):
     """The whole chain on a read survey: RX calibration, JADE, wall fusion. Returns
     (FusedMap, info dict). The wall model comes from the survey when it has one, overriding
     fusion_settings.material."""
@@ -112,8 +116,10 @@ def map_survey(survey, fusion_settings=None, settings=None, system_delay_s=None,
     timings["system_delay_s"] = time.perf_counter() - started
     started = time.perf_counter()
     groups = 0
-    for result in jade_pipeline.run_survey(work, settings, system_delay_s, progress):
-        fusion.add(result["pose"], result["paths"], result["frames"][0])
+    if refine_on_csi:
+        fusion.enable_csi_refinement(info["system_delay_s"])
+    for result in jade_pipeline.run_survey(work, settings, system_delay_s, progress, keep_csi=refine_on_csi):
+        fusion.add(result["pose"], result["paths"], result["frames"][0], result.get("csi"), result.get("tx_weights"))
         groups += 1
     timings["jade_s"] = time.perf_counter() - started
     if groups == 0:
@@ -164,7 +170,8 @@ def main(argv=None):
     try:
         if not args.quiet:
             print("thrumapper-map: calibrating, estimating, fusing ...", file=sys.stderr)
-        fused, info = map_survey(survey, fusion_settings, settings, args.system_delay_s, progress)
+        fused, info = map_survey(survey, fusion_settings, settings, args.system_delay_s, progress,
+                                 refine_on_csi=not args.no_csi_refinement)
     except ValueError as err:
         return fail(str(err))
     fused.write_geojson(args.geojson, fused_detections=args.detections == "fused")

@@ -129,13 +129,14 @@ def estimate_system_delay(survey, groups, max_groups=5, oversample=64):
     return float(np.median(unwrapped) % period_s)
 
 
-def run_survey(survey, settings=None, system_delay_s=None, progress=None):
+def run_survey(survey, settings=None, system_delay_s=None, progress=None, keep_csi=False):
     """JADE on every pose group of a survey.
 
     Yields one dict per group: {"frames": [...], "pose": [x, y, heading],
     "paths": [{"aoa_deg", "delay_s", "power", "stage"}, ...], "model_order": int,
     "spectrum_db": (A, D) array}. The system delay comes from the argument, else the survey,
     else the direct path. `progress` is an optional tqdm-like wrapper for the group list.
+    keep_csi adds "csi": the frames as JADE saw them (direct path cancelled) and "tx_weights".
     """
     settings = settings or JadeSettings()
     groups = group_frames_by_pose(survey)
@@ -164,7 +165,8 @@ def run_survey(survey, settings=None, system_delay_s=None, progress=None):
                 projectors[key] = proj
             csi = projectors[key].apply(csi)
         paths = est.estimate(csi)
-        yield {
+        extra = {"csi": csi, "tx_weights": np.asarray(survey.frame_tx_weights[frames[0]], complex)} if keep_csi else {}
+        yield {**extra,
             "frames": [int(f) for f in frames],
             "pose": [float(v) for v in pose],
             "paths": [{"aoa_deg": p.aoa_deg % 360.0, "delay_s": p.delay_s, "power": p.power,

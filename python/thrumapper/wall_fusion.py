@@ -112,11 +112,16 @@ class FusionSettings:
     orientation_sigma_deg: float = 20.0
     #: echoes used per pose after screening, strongest first
     max_paths_per_pose: int = 16
+    #: point and orientation noise of echoes fitted on the CSI (enable_csi_refinement)
+    csi_point_sigma_m: float = 0.03
+    csi_orientation_sigma_deg: float = 2.0
 
     def check(self):
         positive = ("max_range_m", "min_standoff_m", "line_tolerance_m", "angle_tolerance_deg", "max_gap_m", "corner_radius_m",
                     "corner_min_travel_m", "corner_wall_distance_m", "ghost_angle_tolerance_deg",
                     "ghost_delay_tolerance_s", "odometry_position_sigma_m", "point_sigma_m", "orientation_sigma_deg",
+                    "csi_point_sigma_m", "csi_orientation_sigma_deg",
+                    "csi_point_sigma_m", "csi_orientation_sigma_deg",
                     "odometry_heading_sigma_deg")
         for name in positive:
             value = getattr(self, name)
@@ -371,6 +376,9 @@ class WallFusion:
     #: global adjustment
     SEQUENTIAL_PASS = False
     ADJUSTMENT_ROUNDS = 2
+    #: with the CSI (enable_csi_refinement), correct each wall echo by a fit on its pose's CSI
+    #: instead of the slab model's shift
+    CSI_ECHO_SHIFTS = True
     #: repeated frames' paths closer than these are one echo
     MERGE_ANGLE_RAD = math.radians(1.5)
     MERGE_DELAY_S = 0.3e-9
@@ -395,6 +403,9 @@ class WallFusion:
         self.echo_model = EchoModel(radar.tx_elements_m, radar.rx_elements_m, radar.tx_weights, radar.carrier_hz,
                                     radar.subcarrier_offsets_hz)
         self.groups = []
+        #: a wall_refinement.CsiWallRefiner when the CSI is given (enable_csi_refinement)
+        self.refiner = None
+        self._csi_fitted = False
         self.counts = {"messages": 0, "paths": 0, "skipped_nonfinite": 0, "skipped_early": 0, "skipped_far": 0,
                        "skipped_weak": 0}
 
@@ -419,11 +430,22 @@ class WallFusion:
         power = float(path.get("power", 1.0))
         return aoa, float(path["delay_s"]), power, int(path.get("stage", 0))
 
-    def add(self, pose, paths, frame_index=None):
+    def enable_csi_refinement(self, system_delay_s, settings=None):
+        """Correct the wall echoes on the CSI (wall_refinement.py) when build_map runs: add()
+        then takes each group's CSI frames as JADE saw them (RX-calibrated, direct path
+        cancelled), and each echo of a mapped wall is replaced by the specular path of that
+        wall fitted on its pose's CSI with the exact slab echo model."""
+        from .wall_refinement import CsiWallRefiner
+
+        self.refiner = CsiWallRefiner(self.radar, system_delay_s, self.material, settings)
+
+    def add(self, pose, paths, frame_index=None, csi=None, tx_weights=None):
         """One frame's (or one pose group's) paths, with the pose the odometry reported.
 
         A pose equal to the previous one continues its group (repeated soundings). Returns the
         number of paths kept. Raises FusionError on a pose that is not three finite numbers.
+        csi: the group's CSI frames (F, M, N) for the CSI refinement (enable_csi_refinement),
+        sounded with tx_weights (default: the radar's).
         """
         pose = np.asarray(pose, dtype=float).reshape(-1)
         if pose.shape != (3,) or not np.all(np.isfinite(pose)):
@@ -437,6 +459,8 @@ class WallFusion:
             group = _PoseGroup(pose=pose.copy(), frame_index=int(frame_index))
             self.groups.append(group)
         group.frames += 1
+        if csi is not None and self.refiner is not None:
+            self.refiner.add(len(self.groups) - 1, csi, tx_weights)
         kept = 0
         for path in paths:
             self.counts["paths"] += 1
@@ -846,6 +870,30 @@ class WallFusion:
         return ghost
 
     # -- slab correction -------------------------------------------------------------------
+    def _csi_shifts(self, det, state, poses):
+        """Per-echo corrections from the CSI: each wall echo is replaced by the specular path
+        of its wall fitted on that pose's CSI alone with the exact slab echo model
+        (wall_refinement.CsiWallRefiner.fit_echo), the other walls' echoes and the unexplained
+        paths projected out. Echoes of no wall, or of a wall the fit cannot see, keep theirs."""
+        n = det["aoa"].size
+        d_aoa, d_delay = np.zeros(n), np.zeros(n)
+        _, wall_cls = self._classify(state)
+        paths = [[(q["aoa_rad"], q["delay_s"]) for q in g.paths] for g in self.groups]
+        self.refiner.set_map(state["walls"], poses, paths, [c == HIDDEN for c in wall_cls])
+        fits = {}
+        for i in range(n):
+            k = int(state["labels"][i])
+            if k < 0:
+                continue
+            g = int(det["group"][i])
+            if (g, k) not in fits:
+                fits[(g, k)] = self.refiner.fit_echo(g, k)
+            fit = fits[(g, k)]
+            if fit is not None:
+                d_aoa[i] = _wrap(det["aoa"][i] - fit[0])  # removed by _geometry
+                d_delay[i] = det["delay"][i] - fit[1]
+        return d_aoa, d_delay
+
     def _shifts(self, det, walls, labels, crossings, poses):
         n = det["aoa"].size
         d_aoa = np.zeros(n)
@@ -970,8 +1018,12 @@ class WallFusion:
                 ghosts = ghosts | self._timed("ghosts", self._ghosts, det, state["walls"], wall_cls, det["group"], poses,
                                               (det_cls == HIDDEN) | (state["labels"] == UNASSIGNED))
                 state = self._timed("walls and landmarks", self._map_pass, det, poses, zero, min_poses, ghosts)
-            shifts = self._timed("slab correction", self._shifts, det, state["walls"], state["labels"],
-                                 state["crossings"], poses)
+            if self.refiner is not None and self.refiner.poses and self.CSI_ECHO_SHIFTS:
+                shifts = self._timed("CSI echo fits", self._csi_shifts, det, state, poses)
+                self._csi_fitted = True
+            else:
+                shifts = self._timed("slab correction", self._shifts, det, state["walls"], state["labels"],
+                                     state["crossings"], poses)
             state = self._timed("walls and landmarks", self._map_pass, det, poses, shifts, min_poses, ghosts)
             return state, shifts, ghosts
 
@@ -1128,6 +1180,11 @@ class WallFusion:
                           math.radians(s.odometry_heading_sigma_deg) for st in steps])
         sigma_p = s.point_sigma_m
         sigma_o = math.radians(s.orientation_sigma_deg)
+        if self._csi_fitted:
+            # echoes fitted on the CSI with the slab model: their orientations are measured,
+            # not biased by the estimator's model mismatch
+            sigma_p = s.csi_point_sigma_m
+            sigma_o = math.radians(s.csi_orientation_sigma_deg)
         first = odometry[0]
         obs_w_arr = np.array(obs_w, int)
         obs_c_arr = np.array([i for i, _ in obs_c], int)

@@ -1,0 +1,336 @@
+#
+# SPDX-License-Identifier: GPL-3.0-or-later
+#
+"""Wall echoes fitted on the CSI itself (docs/mapping.md, "The CSI echo fit").
+
+JADE's far-field model holds one plane wave per path. A slab wall's echo is not one: its
+front- and back-face echoes overlap (1.6 ns apart for 15 cm of plasterboard, against 8 ns of
+resolution), and its reflection coefficient changes across the band and with the incidence
+angle of each element pair (a wall 0.7 m away is seen at 20-33 deg across the arrays). JADE
+splits such an echo into a main path 1-3 ns and a few degrees off and weak spurious ones, and
+where the main path lands depends on the other echoes present: walls fused from those paths
+are 10-20 cm off.
+
+Once the fusion has a map, each wall seen from a pose is a hypothesis about that pose's CSI:
+its line (offset and orientation) predicts the exact echo on every RX element and subcarrier
+(EchoModel.echo_csi: image method per element pair, spherical wavefronts, the slab's Γ at each
+pair's incidence, the transmission of the line-of-sight walls the legs cross for a hidden
+wall, the TX weights, the system delay). The line is moved to where that prediction explains
+the most of the CSI,
+
+    J(offset, rotation) = sum over frames f of |(P⊥ m)ᴴ h_f|² / ||P⊥ m||²
+
+with a free complex gain per frame (the radar's absolute gain, the wall's roughness and the
+chains' common response are not known) and P⊥ the projection away from everything else
+modelled at that pose: the other mapped walls' predicted echoes, the JADE paths no wall
+explains (corners, clutter, double bounces, as far-field plane waves) and the direct path that
+JADE's input had cancelled. The fitted line's specular path between the array centres then
+replaces JADE's echo in the fusion, which fits the walls and corrects the poses as before.
+
+What it needs: the wall material (the survey's thrumapper:wall_model, or a preset), the system
+delay, the poses, and the CSI the estimator saw. The material is a model assumption like the
+slab correction's: docs/mapping.md gives the accuracy with the right material and a wrong one.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import bistatic
+from .echo_model import EchoModel
+
+C = bistatic.SPEED_OF_LIGHT_M_S
+
+
+@dataclass
+class RefinementSettings:
+    #: a wall moves at most this far along its normal...
+    max_offset_m: float = 0.3
+    #: ...and turns at most this much
+    max_rotation_deg: float = 6.0
+    #: a pose sees a wall when its specular point lies within the wall's extent plus this
+    visibility_margin_m: float = 0.3
+    #: JADE paths farther than these from every modelled wall echo are kept as far-field
+    #: columns (nearer ones are taken for pieces of that wall's echo)
+    explained_angle_deg: float = 12.0
+    explained_delay_s: float = 3.0e-9
+    #: the search stops when its steps are below these
+    final_offset_step_m: float = 0.002
+    final_rotation_step_deg: float = 0.1
+
+    def check(self):
+        for name in ("max_offset_m", "max_rotation_deg", "visibility_margin_m", "explained_angle_deg",
+                     "explained_delay_s", "final_offset_step_m", "final_rotation_step_deg"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name}: expected a positive number, got {value!r}")
+
+
+class _Pose:
+    """One pose group's data: CSI frames as rows (F, M*N), its echo model and direct path."""
+
+    def __init__(self, csi, model, direct):
+        self.rows = csi.reshape(csi.shape[0], -1)
+        self.model = model
+        self.direct = direct  # (M*N,) unit vector cancelled from the data, or None
+
+
+class CsiWallRefiner:
+    """Fits a WallFusion map's walls on each pose's CSI (see the module's description).
+
+    radar: the fusion's RadarGeometry; system_delay_s: τ_sys of the CSI; material: the walls'
+    scene.Material (None: a perfect conductor).
+    """
+
+    def __init__(self, radar, system_delay_s, material, settings=None):
+        self.radar = radar
+        self.system_delay_s = float(system_delay_s)
+        self.material = material
+        self.settings = settings or RefinementSettings()
+        self.settings.check()
+        self.freqs_hz = radar.carrier_hz + np.asarray(radar.subcarrier_offsets_hz, float)
+        self._sys = np.exp(-2j * np.pi * self.freqs_hz * self.system_delay_s)
+        self._models = {}
+        self.poses = {}
+        rx = np.asarray(radar.rx_elements_m, float)
+        self._rx_rel = rx - rx.mean(axis=0)
+        self.tx_c = np.asarray(radar.tx_elements_m, float).mean(axis=0)
+        self.rx_c = rx.mean(axis=0)
+        self.stats = {}
+
+    def add(self, group_index, csi, tx_weights=None, direct_cancelled=True):
+        """The CSI frames (F, M, N) of pose group group_index (WallFusion's order), as JADE saw
+        them: RX-calibrated and, with direct_cancelled, the direct path projected out."""
+        csi = np.asarray(csi, complex)
+        if csi.ndim == 2:
+            csi = csi[None]
+        m, n = len(self.radar.rx_elements_m), self.freqs_hz.size
+        if csi.ndim != 3 or csi.shape[1:] != (m, n):
+            raise ValueError(f"csi: expected frames of shape ({m}, {n}), got {csi.shape}")
+        weights = np.asarray(self.radar.tx_weights if tx_weights is None else tx_weights, complex)
+        key = weights.tobytes()
+        model = self._models.get(key)
+        if model is None:
+            model = EchoModel(self.radar.tx_elements_m, self.radar.rx_elements_m, weights, self.radar.carrier_hz,
+                              self.radar.subcarrier_offsets_hz)
+            model._direct = self._direct_vector(weights) if direct_cancelled else None
+            self._models[key] = model
+        self.poses[int(group_index)] = _Pose(csi, model, model._direct)
+
+    def _direct_vector(self, weights):
+        """The exact near-field direct TX->RX response (unit norm): what the data lacks."""
+        tx = np.asarray(self.radar.tx_elements_m, float)
+        rx = np.asarray(self.radar.rx_elements_m, float)
+        d = np.linalg.norm(rx[None, :, :] - tx[:, None, :], axis=2)  # (K, M)
+        lam = C / self.freqs_hz
+        g = lam / (4 * np.pi * d[..., None]) * np.exp(-2j * np.pi * self.freqs_hz * d[..., None] / C)
+        v = (np.einsum("k,kmn->mn", weights, g) * self._sys).ravel()
+        return v / np.linalg.norm(v)
+
+    # -- the model -----------------------------------------------------------------------
+    def _far_field(self, aoa_rad, delay_s):
+        u = bistatic.bearing_vector(aoa_rad)
+        space = np.exp(2j * np.pi * np.outer(self._rx_rel @ u, self.freqs_hz) / C)  # (M, N)
+        return (space * np.exp(-2j * np.pi * self.freqs_hz * delay_s) * self._sys).ravel()
+
+    def _echo(self, data, wall, pose, crossed):
+        """The wall's predicted echo at a pose, (M*N,), or None when the pose does not see it."""
+        point_r = bistatic.world_to_robot(wall["centre"], pose)
+        normal_r = bistatic.rotate(wall["normal"], -pose[2])
+        try:
+            aoa, delay, spec_r = bistatic.specular_path(point_r, normal_r, self.tx_c, self.rx_c)
+        except bistatic.GeometryError:
+            return None
+        spec = bistatic.robot_to_world(spec_r, pose)
+        t = float((spec - wall["centre"]) @ wall["direction"])
+        margin = self.settings.visibility_margin_m
+        if not (wall["t0"] - margin <= t <= wall["t1"] + margin):
+            return None
+        # the robot must be on the side the wall was seen from
+        if float((pose[:2] - wall["centre"]) @ wall["normal"]) <= 0:
+            return None
+        crossed_r = tuple((bistatic.world_to_robot(c["centre"], pose), bistatic.rotate(c["normal"], -pose[2]),
+                           self.material) for c in crossed(spec, pose))
+        v = (data.model.echo_csi(point_r, normal_r, self.material, crossed_r) * self._sys).ravel()
+        return v, aoa, delay
+
+    @staticmethod
+    def _project_out(v, basis):
+        return v if basis is None else v - basis @ (basis.conj().T @ v)
+
+    # -- the search ----------------------------------------------------------------------
+    def set_map(self, walls, poses, group_paths, hidden):
+        """The map the fits work against: wall dicts (centre, normal, direction, t0, t1;
+        world), (P, 3) world poses of the groups, per group JADE's paths [(aoa_rad, delay_s),
+        ...], and per wall whether it is hidden (its echoes cross a line-of-sight wall)."""
+        self.walls = [dict(w) for w in walls]
+        self.world_poses = np.asarray(poses, float).reshape(-1, 3)
+        self.group_paths = group_paths
+        self.hidden = list(hidden)
+
+    def _crossed_for(self, k):
+        """A function (specular point, pose) -> the line-of-sight walls the legs cross."""
+        walls, hidden = self.walls, self.hidden
+
+        def crossed(spec, pose):
+            if not hidden[k]:
+                return []
+            out = []
+            tx_w = bistatic.robot_to_world(self.tx_c, pose)
+            rx_w = bistatic.robot_to_world(self.rx_c, pose)
+            for j, c in enumerate(walls):
+                if j == k or hidden[j]:
+                    continue
+                a0 = c["centre"] + c["t0"] * c["direction"]
+                a1 = c["centre"] + c["t1"] * c["direction"]
+                if _segments_cross(tx_w, spec, a0, a1) or _segments_cross(spec, rx_w, a0, a1):
+                    out.append(c)
+            return out
+        return crossed
+
+    def _basis(self, g, exclude):
+        """Orthonormal columns of everything modelled at group g but wall `exclude`: the other
+        walls' echoes, the JADE paths no wall explains (far field), the cancelled direct path."""
+        s = self.settings
+        data, pose = self.poses[g], self.world_poses[g]
+        cols, explained = [], []
+        for j, w in enumerate(self.walls):
+            e = self._echo(data, w, pose, self._crossed_for(j))
+            if e is None:
+                continue
+            explained.append((e[1], e[2]))
+            if j != exclude:
+                cols.append(e[0])
+        for aoa, delay in self.group_paths[g] if g < len(self.group_paths) else ():
+            near = any(abs(_wrap(aoa - a)) < math.radians(s.explained_angle_deg) and
+                       abs(delay - d) < s.explained_delay_s for a, d in explained)
+            if not near:
+                cols.append(self._far_field(aoa, delay))
+        if data.direct is not None:
+            cols.append(data.direct)
+        if not cols:
+            return None
+        q, r = np.linalg.qr(np.array(cols).T)
+        keep = np.abs(np.diag(r)) > 1e-9 * np.abs(r).max()
+        return q[:, keep]
+
+    def _fit(self, k, groups, pivot, step_m, step_deg):
+        """(offset, rotation, moved wall) maximising J over these groups for wall k."""
+        s = self.settings
+        base = self.walls[k]
+        crossed = self._crossed_for(k)
+        prepared = []
+        for g in groups:
+            basis = self._basis(g, k)
+            prepared.append((g, self._project_out(self.poses[g].rows.T, basis).T, basis))
+
+        def moved_wall(offset, rotation):
+            c, s_ = math.cos(rotation), math.sin(rotation)
+            rot = np.array([[c, -s_], [s_, c]])
+            normal = rot @ base["normal"]
+            direction = np.array([-normal[1], normal[0]])
+            centre = pivot + rot @ (base["centre"] - pivot) + offset * normal
+            # rotated about the pivot, the old extents t0, t1 still apply
+            return dict(base, centre=centre, normal=normal, direction=direction)
+
+        def objective(offset, rotation):
+            trial = moved_wall(offset, rotation)
+            total = 0.0
+            for g, rows, basis in prepared:
+                e = self._echo(self.poses[g], trial, self.world_poses[g], crossed)
+                if e is None:
+                    continue
+                v = self._project_out(e[0], basis)
+                norm = np.vdot(v, v).real
+                if norm > 0:
+                    total += float(np.sum(np.abs(rows @ v.conj()) ** 2) / norm)
+            return total
+
+        offset, rotation = _quadratic_search(
+            objective, s.max_offset_m, math.radians(s.max_rotation_deg), step_m, math.radians(step_deg),
+            s.final_offset_step_m, math.radians(s.final_rotation_step_deg))
+        return offset, rotation, moved_wall(offset, rotation)
+
+    def sees(self, g, k):
+        return g in self.poses and self._echo(self.poses[g], self.walls[k], self.world_poses[g],
+                                              self._crossed_for(k)) is not None
+
+    def fit_echo(self, g, k):
+        """Wall k fitted on group g's CSI alone (its line in that pose's view, rotated about
+        its specular point): the (aoa_rad, delay_s) of the fitted line's specular path between
+        the array centres, or None when the pose does not see the wall."""
+        if not self.sees(g, k):
+            return None
+        pose = self.world_poses[g]
+        wall = self.walls[k]
+        point_r = bistatic.world_to_robot(wall["centre"], pose)
+        normal_r = bistatic.rotate(wall["normal"], -pose[2])
+        _, _, spec_r = bistatic.specular_path(point_r, normal_r, self.tx_c, self.rx_c)
+        pivot = bistatic.robot_to_world(spec_r, pose)
+        _, _, fitted = self._fit(k, [g], pivot, 0.04, 1.0)
+        e = self._echo(self.poses[g], fitted, pose, self._crossed_for(k))
+        return None if e is None else (e[1], e[2])
+
+
+def _wrap(angle):
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _segments_cross(p0, p1, q0, q1):
+    d1, d2 = p1 - p0, q1 - q0
+    den = d1[0] * d2[1] - d1[1] * d2[0]
+    if abs(den) < 1e-12:
+        return False
+    w = q0 - p0
+    t = (w[0] * d2[1] - w[1] * d2[0]) / den
+    u = (w[0] * d1[1] - w[1] * d1[0]) / den
+    return 0.0 < t < 1.0 and 0.0 <= u <= 1.0
+
+
+def _quadratic_search(f, max_x, max_y, step_x, step_y, final_x, final_y):
+    """Maximise f(x, y) over |x| <= max_x, |y| <= max_y from (0, 0): evaluate the 3x3
+    stencil around the best point, jump to the maximum of the quadratic through it when that
+    is a maximum inside twice the stencil, else to the best stencil point; halve the steps
+    when the centre is best. f is smooth on these scales (a free gain per echo: no
+    wavelength-scale ripple)."""
+    cache = {}
+
+    def value(x, y):
+        key = (round(x / final_x * 8), round(y / final_y * 8))
+        if key not in cache:
+            cache[key] = f(x, y) if abs(x) <= max_x + 1e-12 and abs(y) <= max_y + 1e-12 else -np.inf
+        return cache[key]
+
+    x, y = 0.0, 0.0
+    for _ in range(60):
+        offsets = [(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1)]
+        vals = np.array([value(x + i * step_x, y + j * step_y) for i, j in offsets])
+        best = int(np.argmax(vals))
+        if np.all(np.isfinite(vals)):
+            # z = a + b i + c j + d i² + e j² + g i j, least squares on the 9 points
+            A = np.array([[1, i, j, i * i, j * j, i * j] for i, j in offsets], float)
+            a, b, c, d, e, g = np.linalg.lstsq(A, vals, rcond=None)[0]
+            hess = np.array([[2 * d, g], [g, 2 * e]])
+            if d < 0 and np.linalg.det(hess) > 0:
+                di, dj = np.linalg.solve(hess, [-b, -c])
+                if abs(di) <= 2 and abs(dj) <= 2:
+                    xn, yn = x + di * step_x, y + dj * step_y
+                    vn = value(xn, yn)
+                    if vn >= vals[best]:
+                        if abs(di) < 0.5 and abs(dj) < 0.5:
+                            x, y = xn, yn
+                            if step_x <= final_x and step_y <= final_y:
+                                break
+                            step_x, step_y = max(step_x / 2, final_x), max(step_y / 2, final_y)
+                            continue
+                        x, y = xn, yn
+                        continue
+        i, j = offsets[best]
+        if (i, j) == (0, 0):
+            if step_x <= final_x and step_y <= final_y:
+                break
+            step_x, step_y = max(step_x / 2, final_x), max(step_y / 2, final_y)
+        else:
+            x, y = x + i * step_x, y + j * step_y
+    return float(np.clip(x, -max_x, max_x)), float(np.clip(y, -max_y, max_y))
