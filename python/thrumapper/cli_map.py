@@ -17,9 +17,11 @@ the chain (docs/mapping.md):
      measured on the direct TX->RX path (impossible when the TX null hides it: then give it);
   3. JADE on every pose group (thrumapper-jade's code; successive cancellation with
      --stages when the estimator has it);
-  4. wall fusion: reflection points and orientations, slab correction with the wall model
-     (the survey's thrumapper:wall_model, else --material), corners, ghosts, walls, classes,
-     pose correction. The GNU Radio block wall_fusion runs the same code.
+  4. wall fusion: reflection points and orientations, corners, ghosts, walls, classes, pose
+     correction; each echo of a mapped wall replaced by that wall fitted on its pose's CSI with
+     the exact slab echo model of the wall material (the survey's thrumapper:wall_model, else
+     --material; --no-csi-refinement: JADE's echoes with the slab model's shift instead, as the
+     GNU Radio block wall_fusion, which gets no CSI, does).
 
 outputs:
   MAP.geojson  FORMATS.md's map: walls (class, confidence), detections, corners, trajectory
