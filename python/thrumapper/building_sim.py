@@ -100,14 +100,30 @@ def slab_coefficients(material, cos_theta, frequencies_hz):
 _TABLE_POINTS = 2049
 
 
+def coefficient_table(material, frequencies_hz):
+    """(Γ, T) of a material over the incidence grid at these frequencies: (2, _TABLE_POINTS, N),
+    for interpolate_coefficients."""
+    theta = np.linspace(0.0, np.pi / 2, _TABLE_POINTS)
+    return np.stack(slab_coefficients(material, np.cos(theta), frequencies_hz))
+
+
+def interpolate_coefficients(table, cos_theta):
+    """One of coefficient_table's tables (Γ or T, (_TABLE_POINTS, N)) at these incidence
+    cosines, any shape: (..., N), linear in the incidence angle."""
+    position = np.arccos(np.clip(np.asarray(cos_theta, float), 0.0, 1.0)) * ((_TABLE_POINTS - 1) / (np.pi / 2))
+    index = np.minimum(position.astype(int), _TABLE_POINTS - 2)
+    frac = (position - index)[..., None]
+    lo = table[index]
+    return lo + frac * (table[index + 1] - lo)
+
+
 def _coefficient_table(geom, material_id, frequencies_hz):
-    """(Γ, T) of one material tabulated over the incidence grid at these frequencies, cached."""
+    """coefficient_table of one of the scene's materials, cached."""
     frequencies_hz = np.asarray(frequencies_hz, dtype=float)
     key = (int(material_id), frequencies_hz.tobytes())
     table = geom.coefficient_tables.get(key)
     if table is None:
-        theta = np.linspace(0.0, np.pi / 2, _TABLE_POINTS)
-        table = slab_coefficients(geom.materials[material_id], np.cos(theta), frequencies_hz)
+        table = coefficient_table(geom.materials[material_id], frequencies_hz)
         if len(geom.coefficient_tables) > 64:  # many frequency sets (a sweep): start afresh
             geom.coefficient_tables.clear()
         geom.coefficient_tables[key] = table
@@ -117,14 +133,10 @@ def _coefficient_table(geom, material_id, frequencies_hz):
 def _wall_coefficients(geom, material_of, cos_theta, frequencies_hz, which):
     """Γ (which=0) or T (which=1) for rows of (material index, cos θ): (rows, N)."""
     out = np.empty((cos_theta.size, np.size(frequencies_hz)), dtype=complex)
-    position = np.arccos(np.clip(cos_theta, 0.0, 1.0)) * ((_TABLE_POINTS - 1) / (np.pi / 2))
-    index = np.minimum(position.astype(int), _TABLE_POINTS - 2)
-    frac = (position - index)[:, None]
     for material_id in np.unique(material_of):
         rows = np.flatnonzero(material_of == material_id)
-        table = _coefficient_table(geom, material_id, frequencies_hz)[which]
-        lo, hi = table[index[rows]], table[index[rows] + 1]
-        out[rows] = lo + frac[rows] * (hi - lo)
+        out[rows] = interpolate_coefficients(_coefficient_table(geom, material_id, frequencies_hz)[which],
+                                             cos_theta[rows])
     return out
 
 

@@ -33,7 +33,7 @@ import math
 import numpy as np
 
 from . import bistatic
-from .building_sim import slab_coefficients
+from .building_sim import coefficient_table, interpolate_coefficients, slab_coefficients
 from .scene import MATERIAL_PRESETS, Material
 
 C = bistatic.SPEED_OF_LIGHT_M_S
@@ -118,26 +118,16 @@ class EchoModel:
         self._k_hz = 2.0 * np.pi * self.freqs_hz / C  # wavenumbers, rad/m
         self._lambda_m = C / self.freqs_hz
 
-    #: incidence-angle grid of the coefficient tables (0-90 deg, 0.044 deg apart: linear
-    #: interpolation is good to ~1e-7, as in building_sim)
-    TABLE_POINTS = 2049
-
     def coefficients(self, material, cos_incidence, which=0):
         """Γ (which=0) or the insertion T (which=1) of a material at these incidence cosines
-        (any shape) and the model's subcarriers: shape (..., N). Interpolated in a table made
-        once per material (the slab formula itself costs ~1 ms per 8x8 element pairs)."""
-        table = self._tables.get(id(material))
-        if table is None or table[0] is not material:
-            theta = np.linspace(0.0, np.pi / 2, self.TABLE_POINTS)
-            table = (material,) + tuple(slab_coefficients(material, np.cos(theta), self.freqs_hz))
-            self._tables[id(material)] = table
-        values = table[1 + which]
-        cos_incidence = np.asarray(cos_incidence, float)
-        position = np.arccos(np.clip(cos_incidence, 0.0, 1.0)) * ((self.TABLE_POINTS - 1) / (np.pi / 2))
-        index = np.minimum(position.astype(int), self.TABLE_POINTS - 2)
-        frac = (position - index)[..., None]
-        lo = values[index]
-        return lo + frac * (values[index + 1] - lo)
+        (any shape) and the model's subcarriers: shape (..., N). Interpolated in the
+        simulator's table (building_sim.coefficient_table), made once per material here: the
+        slab formula itself costs ~1 ms per 8x8 element pairs."""
+        cached = self._tables.get(id(material))
+        if cached is None or cached[0] is not material:
+            cached = (material, coefficient_table(material, self.freqs_hz))
+            self._tables[id(material)] = cached
+        return interpolate_coefficients(cached[1][which], cos_incidence)
 
     # -- the echo ------------------------------------------------------------------------
     def echo_csi(self, face_point_m, normal, material, crossed=()):

@@ -121,7 +121,6 @@ class FusionSettings:
                     "corner_min_travel_m", "corner_wall_distance_m", "ghost_angle_tolerance_deg",
                     "ghost_delay_tolerance_s", "odometry_position_sigma_m", "point_sigma_m", "orientation_sigma_deg",
                     "csi_point_sigma_m", "csi_orientation_sigma_deg",
-                    "csi_point_sigma_m", "csi_orientation_sigma_deg",
                     "odometry_heading_sigma_deg")
         for name in positive:
             value = getattr(self, name)
@@ -376,9 +375,6 @@ class WallFusion:
     #: global adjustment
     SEQUENTIAL_PASS = False
     ADJUSTMENT_ROUNDS = 2
-    #: with the CSI (enable_csi_refinement), correct each wall echo by a fit on its pose's CSI
-    #: instead of the slab model's shift
-    CSI_ECHO_SHIFTS = True
     #: repeated frames' paths closer than these are one echo
     MERGE_ANGLE_RAD = math.radians(1.5)
     MERGE_DELAY_S = 0.3e-9
@@ -405,7 +401,6 @@ class WallFusion:
         self.groups = []
         #: a wall_refinement.CsiWallRefiner when the CSI is given (enable_csi_refinement)
         self.refiner = None
-        self._csi_fitted = False
         self.counts = {"messages": 0, "paths": 0, "skipped_nonfinite": 0, "skipped_early": 0, "skipped_far": 0,
                        "skipped_weak": 0}
 
@@ -438,6 +433,11 @@ class WallFusion:
         from .wall_refinement import CsiWallRefiner
 
         self.refiner = CsiWallRefiner(self.radar, system_delay_s, self.material, settings)
+
+    @property
+    def _fits_on_csi(self):
+        """Whether wall echoes are fitted on the CSI (else shifted by the slab model)."""
+        return self.refiner is not None and bool(self.refiner.poses)
 
     def add(self, pose, paths, frame_index=None, csi=None, tx_weights=None):
         """One frame's (or one pose group's) paths, with the pose the odometry reported.
@@ -1018,9 +1018,8 @@ class WallFusion:
                 ghosts = ghosts | self._timed("ghosts", self._ghosts, det, state["walls"], wall_cls, det["group"], poses,
                                               (det_cls == HIDDEN) | (state["labels"] == UNASSIGNED))
                 state = self._timed("walls and landmarks", self._map_pass, det, poses, zero, min_poses, ghosts)
-            if self.refiner is not None and self.refiner.poses and self.CSI_ECHO_SHIFTS:
+            if self._fits_on_csi:
                 shifts = self._timed("CSI echo fits", self._csi_shifts, det, state, poses)
-                self._csi_fitted = True
             else:
                 shifts = self._timed("slab correction", self._shifts, det, state["walls"], state["labels"],
                                      state["crossings"], poses)
@@ -1180,7 +1179,7 @@ class WallFusion:
                           math.radians(s.odometry_heading_sigma_deg) for st in steps])
         sigma_p = s.point_sigma_m
         sigma_o = math.radians(s.orientation_sigma_deg)
-        if self._csi_fitted:
+        if self._fits_on_csi:
             # echoes fitted on the CSI with the slab model: their orientations are measured,
             # not biased by the estimator's model mismatch
             sigma_p = s.csi_point_sigma_m

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import bistatic
+from . import thrumapper_python as _core
 from .echo_model import EchoModel
 
 C = bistatic.SPEED_OF_LIGHT_M_S
@@ -73,7 +74,7 @@ class _Pose:
     def __init__(self, csi, model, direct):
         self.rows = csi.reshape(csi.shape[0], -1)
         self.model = model
-        self.direct = direct  # (M*N,) unit vector cancelled from the data, or None
+        self.direct = direct  # (M*N,) the direct path cancelled from the data, or None
 
 
 class CsiWallRefiner:
@@ -97,7 +98,6 @@ class CsiWallRefiner:
         self._rx_rel = rx - rx.mean(axis=0)
         self.tx_c = np.asarray(radar.tx_elements_m, float).mean(axis=0)
         self.rx_c = rx.mean(axis=0)
-        self.stats = {}
 
     def add(self, group_index, csi, tx_weights=None, direct_cancelled=True):
         """The CSI frames (F, M, N) of pose group group_index (WallFusion's order), as JADE saw
@@ -110,23 +110,21 @@ class CsiWallRefiner:
             raise ValueError(f"csi: expected frames of shape ({m}, {n}), got {csi.shape}")
         weights = np.asarray(self.radar.tx_weights if tx_weights is None else tx_weights, complex)
         key = weights.tobytes()
-        model = self._models.get(key)
-        if model is None:
+        if key not in self._models:
             model = EchoModel(self.radar.tx_elements_m, self.radar.rx_elements_m, weights, self.radar.carrier_hz,
                               self.radar.subcarrier_offsets_hz)
-            model._direct = self._direct_vector(weights) if direct_cancelled else None
-            self._models[key] = model
-        self.poses[int(group_index)] = _Pose(csi, model, model._direct)
+            self._models[key] = (model, self._direct_response(weights))
+        model, direct = self._models[key]
+        self.poses[int(group_index)] = _Pose(csi, model, direct if direct_cancelled else None)
 
-    def _direct_vector(self, weights):
-        """The exact near-field direct TX->RX response (unit norm): what the data lacks."""
-        tx = np.asarray(self.radar.tx_elements_m, float)
-        rx = np.asarray(self.radar.rx_elements_m, float)
-        d = np.linalg.norm(rx[None, :, :] - tx[:, None, :], axis=2)  # (K, M)
-        lam = C / self.freqs_hz
-        g = lam / (4 * np.pi * d[..., None]) * np.exp(-2j * np.pi * self.freqs_hz * d[..., None] / C)
-        v = (np.einsum("k,kmn->mn", weights, g) * self._sys).ravel()
-        return v / np.linalg.norm(v)
+    def _direct_response(self, weights):
+        """The exact near-field direct TX->RX response (the core's direct_path_response, the
+        response jade_pipeline's projector cancels): what the data lacks."""
+        radar = _core.radar_description.make(
+            np.asarray(self.radar.tx_elements_m, float), np.asarray(self.radar.rx_elements_m, float),
+            float(self.radar.carrier_hz), [float(f) for f in self.radar.subcarrier_offsets_hz],
+            [complex(w) for w in weights])
+        return np.asarray(_core.direct_path_response(radar, [complex(w) for w in weights], self.system_delay_s))
 
     # -- the model -----------------------------------------------------------------------
     def _far_field(self, aoa_rad, delay_s):
@@ -184,7 +182,7 @@ class CsiWallRefiner:
                     continue
                 a0 = c["centre"] + c["t0"] * c["direction"]
                 a1 = c["centre"] + c["t1"] * c["direction"]
-                if _segments_cross(tx_w, spec, a0, a1) or _segments_cross(spec, rx_w, a0, a1):
+                if bistatic.segments_cross(tx_w, spec, a0, a1) or bistatic.segments_cross(spec, rx_w, a0, a1):
                     out.append(c)
             return out
         return crossed
@@ -203,7 +201,7 @@ class CsiWallRefiner:
             if j != exclude:
                 cols.append(e[0])
         for aoa, delay in self.group_paths[g] if g < len(self.group_paths) else ():
-            near = any(abs(_wrap(aoa - a)) < math.radians(s.explained_angle_deg) and
+            near = any(abs(math.remainder(aoa - a, 2.0 * math.pi)) < math.radians(s.explained_angle_deg) and
                        abs(delay - d) < s.explained_delay_s for a, d in explained)
             if not near:
                 cols.append(self._far_field(aoa, delay))
@@ -271,21 +269,6 @@ class CsiWallRefiner:
         _, _, fitted = self._fit(k, [g], pivot, 0.04, 1.0)
         e = self._echo(self.poses[g], fitted, pose, self._crossed_for(k))
         return None if e is None else (e[1], e[2])
-
-
-def _wrap(angle):
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def _segments_cross(p0, p1, q0, q1):
-    d1, d2 = p1 - p0, q1 - q0
-    den = d1[0] * d2[1] - d1[1] * d2[0]
-    if abs(den) < 1e-12:
-        return False
-    w = q0 - p0
-    t = (w[0] * d2[1] - w[1] * d2[0]) / den
-    u = (w[0] * d1[1] - w[1] * d1[0]) / den
-    return 0.0 < t < 1.0 and 0.0 <= u <= 1.0
 
 
 def _quadratic_search(f, max_x, max_y, step_x, step_y, final_x, final_y):
