@@ -104,8 +104,8 @@ class FusionSettings:
     #: odometry error model for the pose correction (1-sigma per step)
     odometry_scale_sigma: float = 0.01
     odometry_heading_sigma_deg_per_m: float = 0.5
-    odometry_position_sigma_m: float = 0.005
-    odometry_heading_sigma_deg: float = 0.1
+    odometry_position_sigma_m: float = 0.002
+    odometry_heading_sigma_deg: float = 0.05
     #: measurement noise of a reflection point
     point_sigma_m: float = 0.05
     #: ...and of its orientation (loose: the estimator's angle errors bias it)
@@ -377,6 +377,23 @@ class WallFusion:
     ADJUSTMENT_ROUNDS = 2
     #: repeated frames' paths closer than these are one echo
     MERGE_ANGLE_RAD = math.radians(1.5)
+    #: pose correction: wall pieces this well aligned and this close along their line are one
+    #: line landmark (_collinear_groups)
+    LINE_ANGLE_DEG = 6.0
+    LINE_GAP_M = 4.0
+    #: classes: a line-of-sight wall seen from this many poses is extended by LINE_GAP_M past
+    #: its ends when testing what is behind it
+    EXTENSION_MIN_POSES = 5
+    #: the adjustment's least-squares evaluations per solve, reweighting solves, and the
+    #: Cauchy scale of the reweighting (normalised residuals)
+    ADJUSTMENT_MAX_NFEV = 200
+    ADJUSTMENT_REWEIGHTS = 6
+    ADJUSTMENT_CAUCHY = 2.0
+    #: the odometry's scale error and heading drift are estimated only when the data set them
+    #: this many standard errors away from none
+    SYSTEMATIC_SIGNIFICANCE = 2.0
+    #: point landmarks' noise with CSI-fitted walls, in units of 2 * point_sigma_m
+    CORNER_SIGMA_FACTOR = 3.0
     MERGE_DELAY_S = 0.3e-9
 
     def __init__(self, radar, settings=None):
@@ -936,7 +953,8 @@ class WallFusion:
         crossings = self._crossings(walls, pw, det["group"], poses, labels)
         blocked = self._behind_nearer_echo(pw, nw, det["group"], poses, ranges, active & (labels != CORNER))
         return {"points_r": points_r, "normals_r": normals_r, "pw": pw, "nw": nw, "labels": labels,
-                "walls": walls, "landmarks": landmarks, "crossings": crossings, "blocked": blocked}
+                "walls": walls, "landmarks": landmarks, "crossings": crossings, "blocked": blocked,
+                "poses": poses, "group": det["group"]}
 
     def _behind_nearer_echo(self, pw, nw, group, poses, ranges, usable, half_patch_m=0.6):
         """Echoes whose legs cross the face of a nearer echo of the same pose (that echo's
@@ -973,7 +991,42 @@ class WallFusion:
         for k, w in enumerate(state["walls"]):
             votes = det_cls[w["members"]]
             wall_cls.append(HIDDEN if np.mean(votes == HIDDEN) > 0.5 else LOS)
+        # a line-of-sight wall goes on past where its echoes stop (a corridor wall is not
+        # seen where the TX beam is weak): a wall whose echoes reach the robot through the
+        # extension of a line-of-sight wall, LINE_GAP_M past its ends, is behind it
+        los = [k for k, c in enumerate(wall_cls) if c == LOS]
+        if len(los) >= 2 and "poses" in state:
+            walls = [state["walls"][k] for k in los]
+            # only a wall seen along a stretch of the track is extended (not one pose's echo)
+            margins = [self.LINE_GAP_M if np.unique(state["group"][w["members"]]).size >= self.EXTENSION_MIN_POSES
+                       else 0.0 for w in walls]
+            a = np.array([w["centre"] + (w["t0"] - m) * w["direction"] for w, m in zip(walls, margins)])
+            b = np.array([w["centre"] + (w["t1"] + m) * w["direction"] for w, m in zip(walls, margins)])
+            line_of = {}
+            for n_line, members in enumerate(self._collinear_groups(walls)):
+                line_of.update({j: n_line for j in members})
+            for j, k in enumerate(los):
+                members = state["walls"][k]["members"]
+                tx, rx = self._legs_from(state["poses"], state["group"][members])
+                pw = state["pw"][members]
+                end_tx = pw + 0.03 * (tx - pw)
+                end_rx = pw + 0.03 * (rx - pw)
+                hit = bistatic.segments_cross(tx[:, None, :], end_tx[:, None, :], a[None], b[None]) | \
+                    bistatic.segments_cross(rx[:, None, :], end_rx[:, None, :], a[None], b[None])
+                hit[:, [i for i in range(len(los)) if line_of[i] == line_of[j]]] = False  # its own line
+                behind = np.any(hit, axis=1)
+                if np.mean(behind) > 0.5:
+                    wall_cls[k] = HIDDEN
+                    det_cls[members[behind]] = HIDDEN
         return det_cls, wall_cls
+
+    def _legs_from(self, poses, group):
+        """World TX and RX centres of the poses of these echoes' groups."""
+        p = poses[group]
+        c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
+        tx = np.column_stack((p[:, 0] + c * self.tx_c[0] - s * self.tx_c[1], p[:, 1] + s * self.tx_c[0] + c * self.tx_c[1]))
+        rx = np.column_stack((p[:, 0] + c * self.rx_c[0] - s * self.rx_c[1], p[:, 1] + s * self.rx_c[0] + c * self.rx_c[1]))
+        return tx, rx
 
     def _timed(self, phase, function, *args):
         started = time.perf_counter()
@@ -1154,7 +1207,12 @@ class WallFusion:
         walls = state["walls"]
         labels = state["labels"]
         los_walls = [k for k in range(len(walls)) if wall_cls[k] == LOS]
-        wall_slot = {k: j for j, k in enumerate(los_walls)}
+        # collinear pieces of one wall (cut at doors) are one line landmark: a wall does not
+        # bend at a door, so the odometry's heading drift cannot be absorbed piece by piece
+        lines = self._collinear_groups([walls[k] for k in los_walls])
+        wall_slot = {los_walls[i]: j for j, members in enumerate(lines) for i in members}
+        line_rep = [los_walls[max(members, key=lambda i: walls[los_walls[i]]["t1"] - walls[los_walls[i]]["t0"])]
+                    for members in lines]
         landmarks = state["landmarks"]
         obs_w = [i for i in range(labels.size) if labels[i] in wall_slot]
         obs_c = [(i, j) for j, (_, members) in enumerate(landmarks) for i in members]
@@ -1164,19 +1222,20 @@ class WallFusion:
         normals_r = state["normals_r"]
         group = det["group"]
         n_pose = 3 * (P - 1)
-        n_wall = 2 * len(los_walls)
+        n_wall = 2 * len(lines)
         n_corner = 2 * len(landmarks)
         # the odometry's systematic errors, a scale factor and a heading drift per metre, are
         # estimated with the poses (white per-step noise alone would let a steady drift bend
         # the map to follow it)
         x0 = np.concatenate([poses[1:].reshape(-1),
                              np.array([[math.atan2(walls[k]["normal"][1], walls[k]["normal"][0]),
-                                        walls[k]["centre"] @ walls[k]["normal"]] for k in los_walls]).reshape(-1),
+                                        walls[k]["centre"] @ walls[k]["normal"]] for k in line_rep]).reshape(-1),
                              np.array([c for c, _ in landmarks]).reshape(-1), [1.0, 0.0]])
         steps = [_relative(odometry[g - 1], odometry[g]) for g in range(1, P)]
         sig_xy = np.array([max(s.odometry_scale_sigma * math.hypot(st[0], st[1]), s.odometry_position_sigma_m) for st in steps])
-        sig_h = np.array([math.radians(s.odometry_heading_sigma_deg_per_m) * math.hypot(st[0], st[1]) +
-                          math.radians(s.odometry_heading_sigma_deg) for st in steps])
+        # the per-step heading noise alone: the steady drift per metre is a parameter below,
+        # and counting it again as white noise would let a long chain bend freely
+        sig_h = np.full(len(steps), math.radians(s.odometry_heading_sigma_deg))
         sigma_p = s.point_sigma_m
         sigma_o = math.radians(s.orientation_sigma_deg)
         if self._fits_on_csi:
@@ -1184,6 +1243,9 @@ class WallFusion:
             # not biased by the estimator's model mismatch
             sigma_p = s.csi_point_sigma_m
             sigma_o = math.radians(s.csi_orientation_sigma_deg)
+        # point landmarks keep the estimator's own echoes (no CSI fit): its delay bias, up to
+        # a nanosecond or two, turns with the view and would pull the poses along the track
+        sigma_c = 2.0 * s.point_sigma_m * (self.CORNER_SIGMA_FACTOR if self._fits_on_csi else 1.0)
         first = odometry[0]
         obs_w_arr = np.array(obs_w, int)
         obs_c_arr = np.array([i for i, _ in obs_c], int)
@@ -1200,6 +1262,7 @@ class WallFusion:
         step_len = np.hypot(steps_arr[:, 0], steps_arr[:, 1])
         sigma_scale = max(5.0 * s.odometry_scale_sigma, 0.01)
         sigma_drift = max(5.0 * math.radians(s.odometry_heading_sigma_deg_per_m), math.radians(0.5))
+        prior = [sigma_scale, sigma_drift]
 
         def residuals(x):
             ps, wl, cr, scale, drift = unpack(x)
@@ -1211,7 +1274,7 @@ class WallFusion:
                                    (rel[:, 1] - scale * steps_arr[:, 1]) / sig_xy,
                                    _wrap(b[:, 2] - a[:, 2] - steps_arr[:, 2] + drift * step_len) / sig_h))
             out = odo.reshape(-1).tolist()
-            out.extend([(scale - 1.0) / sigma_scale, drift / sigma_drift])
+            out.extend([(scale - 1.0) / prior[0], drift / prior[1]])
             if obs_w:
                 pw, nw = self._to_world(points_r[obs_w_arr], normals_r[obs_w_arr], ps, group[obs_w_arr])
                 phi = wl[slot_of, 0]
@@ -1223,8 +1286,8 @@ class WallFusion:
                 out.extend((_wrap(np.arctan2(nw[:, 1], nw[:, 0]) - phi) / sigma_o).tolist())
             if len(obs_c):
                 pw, _ = self._to_world(points_r[obs_c_arr], normals_r[obs_c_arr], ps, group[obs_c_arr])
-                out.extend(((pw - cr[obs_c_lm]) / (2 * sigma_p)).reshape(-1).tolist())
-            return np.array(out)
+                out.extend(((pw - cr[obs_c_lm]) / sigma_c).reshape(-1).tolist())
+            return np.array(out) * row_weights[0]
 
         m = 3 * (P - 1) + 2 + 2 * len(obs_w) + 2 * len(obs_c)
         sparsity = lil_matrix((m, x0.size), dtype=int)
@@ -1253,12 +1316,79 @@ class WallFusion:
                     sparsity[row + r, 3 * (g - 1):3 * g] = 1
                 sparsity[row + r, n_pose + n_wall + 2 * j:n_pose + n_wall + 2 * j + 2] = 1
             row += 2
-        solution = least_squares(residuals, x0, jac_sparsity=sparsity.tocsr(), loss="huber", f_scale=3.0,
-                                 x_scale="jac", max_nfev=100, method="trf")
-        ps, _, _, scale, drift = unpack(solution.x)
+        def solve(x, weights):
+            """Cauchy weights by iterated reweighting around plain least squares: scipy's
+            robust losses take hundreds of evaluations on a long pose chain and stop short of
+            the minimum; plain Gauss-Newton steps converge in a few dozen."""
+            for _ in range(self.ADJUSTMENT_REWEIGHTS):
+                row_weights[0] = weights
+                solution = least_squares(residuals, x, jac_sparsity=sparsity.tocsr(), x_scale="jac",
+                                         max_nfev=self.ADJUSTMENT_MAX_NFEV, method="trf")
+                x = solution.x
+                normalised = np.abs(solution.fun) / weights
+                new_weights = np.sqrt(1.0 / (1.0 + (normalised / self.ADJUSTMENT_CAUCHY) ** 2))
+                if np.allclose(new_weights, weights, atol=0.02):
+                    break
+                weights = new_weights
+            return x, weights, solution
+
+        row_weights = [np.ones(m)]
+        x, weights, solution = solve(x0, np.ones(m))
+        # the odometry's scale and drift are kept only where the data determine them: their
+        # standard errors from the last Jacobian; a systematic error smaller than
+        # SYSTEMATIC_SIGNIFICANCE of them is held at none, so that a few biased echoes cannot
+        # bend a short, well-measured trajectory
+        jac = solution.jac.toarray() if hasattr(solution.jac, "toarray") else np.asarray(solution.jac)
+        cov_x = np.linalg.pinv(jac.T @ jac)
+        sigma_fit = np.sqrt(np.maximum(np.diag(cov_x)[-2:], 0.0))
+        _, _, _, scale, drift = unpack(x)
+        z = np.abs(np.array([scale - 1.0, drift])) / np.maximum(sigma_fit, 1e-12)
+        held = bool(np.all(z < self.SYSTEMATIC_SIGNIFICANCE))
+        if held:
+            prior[:] = [1e-6 * prior[0], 1e-6 * prior[1]]
+            x, weights, solution = solve(x0, np.ones(m))
+        ps, _, _, scale, drift = unpack(x)
         ps[:, 2] = _wrap(ps[:, 2])
-        self._odometry_fit = {"odometry_scale": float(scale), "odometry_drift_deg_per_m": math.degrees(drift)}
+        self._odometry_fit = {"odometry_scale": float(scale), "odometry_drift_deg_per_m": math.degrees(drift),
+                              "odometry_scale_sigma": float(sigma_fit[0]),
+                              "odometry_drift_sigma_deg_per_m": math.degrees(float(sigma_fit[1])),
+                              "odometry_systematic_held": held}
         return ps
+
+    def _collinear_groups(self, walls):
+        """Groups (lists of indices) of walls on one straight line: orientations within
+        LINE_ANGLE_DEG, each end of the nearer piece within line_tolerance_m of the other's
+        line, and at most LINE_GAP_M apart along it (a door, a stretch without echoes)."""
+        s = self.settings
+        parent = list(range(len(walls)))
+
+        def root(i):
+            while parent[i] != i:
+                parent[i] = parent[parent[i]]
+                i = parent[i]
+            return i
+
+        cos_tol = math.cos(math.radians(self.LINE_ANGLE_DEG))
+        for a in range(len(walls)):
+            for b in range(a + 1, len(walls)):
+                wa, wb = walls[a], walls[b]
+                if wa["normal"] @ wb["normal"] < cos_tol:
+                    continue
+                ends_a = [wa["centre"] + t * wa["direction"] for t in (wa["t0"], wa["t1"])]
+                ends_b = [wb["centre"] + t * wb["direction"] for t in (wb["t0"], wb["t1"])]
+                gap, pa, pb = min(((float(np.hypot(*(p - q))), p, q) for p in ends_a for q in ends_b),
+                                  key=lambda item: item[0])
+                if gap > self.LINE_GAP_M:
+                    continue
+                # the facing ends, each against the other piece's line
+                if abs((pb - wa["centre"]) @ wa["normal"]) > s.line_tolerance_m or \
+                        abs((pa - wb["centre"]) @ wb["normal"]) > s.line_tolerance_m:
+                    continue
+                parent[root(a)] = root(b)
+        groups = {}
+        for i in range(len(walls)):
+            groups.setdefault(root(i), []).append(i)
+        return list(groups.values())
 
     # -- output ----------------------------------------------------------------------------
     def _assemble(self, det, poses, odometry, state, det_cls, wall_cls, ghosts, frame_indices, stats):
