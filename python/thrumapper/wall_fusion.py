@@ -804,10 +804,7 @@ class WallFusion:
         if not walls:
             return out
         a, b = self._segments(walls, margin_m=0.3)
-        p = poses[group]
-        c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
-        tx = np.column_stack((p[:, 0] + c * self.tx_c[0] - s * self.tx_c[1], p[:, 1] + s * self.tx_c[0] + c * self.tx_c[1]))
-        rx = np.column_stack((p[:, 0] + c * self.rx_c[0] - s * self.rx_c[1], p[:, 1] + s * self.rx_c[0] + c * self.rx_c[1]))
+        tx, rx = self._legs_from(poses, group)
         # stop the legs short of the reflection point: its own wall must not count
         end_tx = pw + 0.03 * (tx - pw)
         end_rx = pw + 0.03 * (rx - pw)
