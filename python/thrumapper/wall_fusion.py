@@ -793,9 +793,21 @@ class WallFusion:
 
     # -- classes, crossings, ghosts --------------------------------------------------------
     def _segments(self, walls, margin_m=0.0):
-        a = np.array([w["centre"] + (w["t0"] - margin_m) * w["direction"] for w in walls]).reshape(-1, 2)
-        b = np.array([w["centre"] + (w["t1"] + margin_m) * w["direction"] for w in walls]).reshape(-1, 2)
+        """Wall ends (a, b), each extended by margin_m: one number, or one per wall."""
+        margins = np.broadcast_to(np.asarray(margin_m, float), (len(walls),))
+        a = np.array([w["centre"] + (w["t0"] - m) * w["direction"] for w, m in zip(walls, margins)]).reshape(-1, 2)
+        b = np.array([w["centre"] + (w["t1"] + m) * w["direction"] for w, m in zip(walls, margins)]).reshape(-1, 2)
         return a, b
+
+    @staticmethod
+    def _legs_cross(tx, rx, points, a, b):
+        """(n, W): whether the legs TX -> point and point -> RX of n echoes (tx, rx, points:
+        (n, 2) world) cross each of W segments a -> b. The legs stop short of the point, so
+        that the echo's own wall does not count."""
+        end_tx = points + 0.03 * (tx - points)
+        end_rx = points + 0.03 * (rx - points)
+        return bistatic.segments_cross(tx[:, None, :], end_tx[:, None, :], a[None], b[None]) | \
+            bistatic.segments_cross(rx[:, None, :], end_rx[:, None, :], a[None], b[None])
 
     def _crossings(self, walls, pw, group, poses, own):
         """For each echo, the walls (other than its own) its two legs cross: list of lists."""
@@ -804,12 +816,7 @@ class WallFusion:
         if not walls:
             return out
         a, b = self._segments(walls, margin_m=0.3)
-        tx, rx = self._legs_from(poses, group)
-        # stop the legs short of the reflection point: its own wall must not count
-        end_tx = pw + 0.03 * (tx - pw)
-        end_rx = pw + 0.03 * (rx - pw)
-        hit = bistatic.segments_cross(tx[:, None, :], end_tx[:, None, :], a[None], b[None]) | \
-            bistatic.segments_cross(rx[:, None, :], end_rx[:, None, :], a[None], b[None])
+        hit = self._legs_cross(*self._legs_from(poses, group), pw, a, b)
         for i in range(n):
             out[i] = [int(w) for w in np.flatnonzero(hit[i]) if w != own[i]]
         return out
@@ -972,10 +979,7 @@ class WallFusion:
                 tangent = np.column_stack((-nw[nearer, 1], nw[nearer, 0]))
                 a = pw[nearer] - half_patch_m * tangent
                 b = pw[nearer] + half_patch_m * tangent
-                end_tx = pw[i] + 0.03 * (tx - pw[i])
-                end_rx = pw[i] + 0.03 * (rx - pw[i])
-                if np.any(bistatic.segments_cross(tx[None], end_tx[None], a, b)) or \
-                        np.any(bistatic.segments_cross(rx[None], end_rx[None], a, b)):
+                if np.any(self._legs_cross(tx[None], rx[None], pw[i][None], a, b)):
                     blocked[i] = True
         return blocked
 
@@ -997,19 +1001,14 @@ class WallFusion:
             # only a wall seen along a stretch of the track is extended (not one pose's echo)
             margins = [self.LINE_GAP_M if np.unique(state["group"][w["members"]]).size >= self.EXTENSION_MIN_POSES
                        else 0.0 for w in walls]
-            a = np.array([w["centre"] + (w["t0"] - m) * w["direction"] for w, m in zip(walls, margins)])
-            b = np.array([w["centre"] + (w["t1"] + m) * w["direction"] for w, m in zip(walls, margins)])
+            a, b = self._segments(walls, margins)
             line_of = {}
             for n_line, members in enumerate(self._collinear_groups(walls)):
                 line_of.update({j: n_line for j in members})
             for j, k in enumerate(los):
                 members = state["walls"][k]["members"]
-                tx, rx = self._legs_from(state["poses"], state["group"][members])
-                pw = state["pw"][members]
-                end_tx = pw + 0.03 * (tx - pw)
-                end_rx = pw + 0.03 * (rx - pw)
-                hit = bistatic.segments_cross(tx[:, None, :], end_tx[:, None, :], a[None], b[None]) | \
-                    bistatic.segments_cross(rx[:, None, :], end_rx[:, None, :], a[None], b[None])
+                hit = self._legs_cross(*self._legs_from(state["poses"], state["group"][members]), state["pw"][members],
+                                       a, b)
                 hit[:, [i for i in range(len(los)) if line_of[i] == line_of[j]]] = False  # its own line
                 behind = np.any(hit, axis=1)
                 if np.mean(behind) > 0.5:
@@ -1019,10 +1018,10 @@ class WallFusion:
 
     def _legs_from(self, poses, group):
         """World TX and RX centres of the poses of these echoes' groups."""
-        p = poses[group]
-        c, s = np.cos(p[:, 2]), np.sin(p[:, 2])
-        tx = np.column_stack((p[:, 0] + c * self.tx_c[0] - s * self.tx_c[1], p[:, 1] + s * self.tx_c[0] + c * self.tx_c[1]))
-        rx = np.column_stack((p[:, 0] + c * self.rx_c[0] - s * self.rx_c[1], p[:, 1] + s * self.rx_c[0] + c * self.rx_c[1]))
+        n = len(group)
+        unused_normals = np.zeros((n, 2))
+        tx, _ = self._to_world(np.broadcast_to(self.tx_c, (n, 2)), unused_normals, poses, group)
+        rx, _ = self._to_world(np.broadcast_to(self.rx_c, (n, 2)), unused_normals, poses, group)
         return tx, rx
 
     def _timed(self, phase, function, *args):
@@ -1313,10 +1312,11 @@ class WallFusion:
                     sparsity[row + r, 3 * (g - 1):3 * g] = 1
                 sparsity[row + r, n_pose + n_wall + 2 * j:n_pose + n_wall + 2 * j + 2] = 1
             row += 2
-        def solve(x, weights):
+        def solve(x):
             """Cauchy weights by iterated reweighting around plain least squares: scipy's
             robust losses take hundreds of evaluations on a long pose chain and stop short of
             the minimum; plain Gauss-Newton steps converge in a few dozen."""
+            weights = np.ones(m)
             for _ in range(self.ADJUSTMENT_REWEIGHTS):
                 row_weights[0] = weights
                 solution = least_squares(residuals, x, jac_sparsity=sparsity.tocsr(), x_scale="jac",
@@ -1327,10 +1327,10 @@ class WallFusion:
                 if np.allclose(new_weights, weights, atol=0.02):
                     break
                 weights = new_weights
-            return x, weights, solution
+            return x, solution
 
         row_weights = [np.ones(m)]
-        x, weights, solution = solve(x0, np.ones(m))
+        x, solution = solve(x0)
         # the odometry's scale and drift are kept only where the data determine them: their
         # standard errors from the last Jacobian; a systematic error smaller than
         # SYSTEMATIC_SIGNIFICANCE of them is held at none, so that a few biased echoes cannot
@@ -1343,7 +1343,7 @@ class WallFusion:
         held = bool(np.all(z < self.SYSTEMATIC_SIGNIFICANCE))
         if held:
             prior[:] = [1e-6 * prior[0], 1e-6 * prior[1]]
-            x, weights, solution = solve(x0, np.ones(m))
+            x, solution = solve(x0)
         ps, _, _, scale, drift = unpack(x)
         ps[:, 2] = _wrap(ps[:, 2])
         self._odometry_fit = {"odometry_scale": float(scale), "odometry_drift_deg_per_m": math.degrees(drift),
