@@ -5,6 +5,7 @@
 """The CSI echo fit (wall_refinement.py): slab walls found at their geometric delays on the
 paper's simulated surveys, through a wall too, and the corridor mapped to the issue's targets."""
 
+import importlib
 import math
 import os
 import tempfile
@@ -42,6 +43,16 @@ def refiner_for(res):
     frames = np.flatnonzero(res.pose_index == 0)
     refiner.add(0, projector.apply(np.asarray(res.csi[frames], complex)), res.tx_weights)
     return refiner
+
+
+def written_survey(directory, sc, res, poses):
+    """The simulated survey written as a SigMF survey with these poses, and read back."""
+    meta = survey.write_survey(
+        os.path.join(directory, "corridor"), res.csi, subcarrier_offsets_hz=sc.radar.subcarrier_offsets_hz,
+        center_frequency_hz=sc.radar.carrier_hz, rx_elements_m=sc.radar.rx_elements_m,
+        tx_elements_m=sc.radar.tx_elements_m, tx_weights=res.tx_weights, poses=poses,
+        frame_types=res.frame_types, system_delay_s=sc.impairments["system_delay_s"], wall_model=res.wall_model)
+    return survey.read_survey(meta)
 
 
 def wall(face_y, tilt_deg=0.0, robot_side=1.0):
@@ -101,18 +112,60 @@ class qa_wall_refinement(gr_unittest.TestCase):
         sc = scene.load_scene(scene_path("paper_4_4_corridor_corner"))
         res = building_sim.simulate_survey(sc, progress=False)
         with tempfile.TemporaryDirectory() as tmp:
-            meta = survey.write_survey(
-                os.path.join(tmp, "corridor"), res.csi, subcarrier_offsets_hz=sc.radar.subcarrier_offsets_hz,
-                center_frequency_hz=sc.radar.carrier_hz, rx_elements_m=sc.radar.rx_elements_m,
-                tx_elements_m=sc.radar.tx_elements_m, tx_weights=res.tx_weights, poses=res.poses_odometry,
-                frame_types=res.frame_types, system_delay_s=sc.impairments["system_delay_s"],
-                wall_model=res.wall_model)
-            fused, _ = cli_map.map_survey(survey.read_survey(meta))
+            fused, _ = cli_map.map_survey(written_survey(tmp, sc, res, res.poses_odometry))
         scores = evaluation.score_map(fused.to_geojson(), building_sim.truth_geojson(sc))
         los = scores["classes"]["line_of_sight"]["detections"]["rms_m"]
         hidden = scores["classes"]["hidden"]["detections"]["rms_m"]
         self.assertLess(los, 0.05, scores)
         self.assertLess(hidden, 0.12, scores)
+
+    def test_echo_placed_off_its_wall_is_fitted_onto_it(self):
+        """The estimator can place a slab's echo farther off its wall than line_tolerance_m.
+        Every third pose of the §4.4 scan has its line-of-sight wall echo moved 1.2 ns and 2°
+        (about 0.2 m behind the face, 0.7 m away): the CSI fit of the wall at that pose puts
+        it back on the face (y = -0.7 m, to 10 cm, the echoes' spread). With the association
+        off (CSI_ASSOCIATION_M = 0) fewer reach the face."""
+        wf = importlib.import_module("gnuradio.thrumapper.wall_fusion")  # the package's name is the block
+        sc = scene.load_scene(scene_path("paper_4_4_corridor_corner"))
+        res = building_sim.simulate_survey(sc, progress=False)
+        face_y = -0.7
+        moved = []
+
+        def add(self, pose, paths, frame_index=None, csi=None, tx_weights=None):
+            values = [dict(zip(("aoa_rad", "delay_s", "power", "stage"), self._path_values(p))) for p in paths]
+            if len(self.groups) % 3 == 1:
+                # the wall echo: the path nearest the specular one of the face below the robot
+                theta, tau, _ = bistatic.specular_path([0.0, face_y], [0.0, 1.0], self.tx_c, self.rx_c)
+                nearest = min(values, key=lambda v: abs(v["delay_s"] - tau) +
+                              1e-9 * abs(math.remainder(v["aoa_rad"] - theta, 2 * math.pi)))
+                nearest["delay_s"] += 1.2e-9
+                nearest["aoa_rad"] += math.radians(2.0)
+                moved.append(len(self.groups))
+            return original_add(self, pose, values, frame_index, csi, tx_weights)
+
+        def on_face(association_m):
+            moved.clear()
+            with tempfile.TemporaryDirectory() as tmp:
+                read = written_survey(tmp, sc, res, res.poses_true)
+                wf.WallFusion.add = add
+                wf.WallFusion.CSI_ASSOCIATION_M = association_m
+                try:
+                    fused, _ = cli_map.map_survey(read, fusion_settings=wf.FusionSettings(correct_poses=False))
+                finally:
+                    wf.WallFusion.add = original_add
+                    wf.WallFusion.CSI_ASSOCIATION_M = original_association
+            echoes = fused.echoes.get("line_of_sight", np.zeros((0, 2)))
+            near_track = echoes[(echoes[:, 0] > 0.3) & (echoes[:, 0] < 5.3) & (np.abs(echoes[:, 1] - face_y) < 0.5)]
+            return int(np.count_nonzero(np.abs(near_track[:, 1] - face_y) < 0.1)), len(moved)
+
+        original_add = wf.WallFusion.add
+        original_association = wf.WallFusion.CSI_ASSOCIATION_M
+        with_association, n_moved = on_face(original_association)
+        without, _ = on_face(0.0)
+        self.assertGreaterEqual(n_moved, 8)
+        # nearly one echo on the face per pose between x = 0.3 and 5.3 m (25 poses)
+        self.assertGreaterEqual(with_association, 22, (with_association, without))
+        self.assertGreaterEqual(with_association, without + 2, (with_association, without))
 
 
 if __name__ == "__main__":

@@ -371,10 +371,12 @@ class WallFusion:
     SEQUENTIAL_REACH_M = 4.0
     #: ...and uses only echoes this close to the robot
     SEQUENTIAL_RANGE_M = 3.0
-    #: pose correction: the sequential filter first, then this many rounds of mapping and
-    #: global adjustment
+    #: pose correction: the sequential filter first, then up to this many rounds of mapping
+    #: and global adjustment
     SEQUENTIAL_PASS = False
-    ADJUSTMENT_ROUNDS = 2
+    ADJUSTMENT_ROUNDS = 8
+    #: ...stopping early once no pose moves this far in a round
+    ADJUSTMENT_SETTLED_M = 0.01
     #: repeated frames' paths closer than these are one echo
     MERGE_ANGLE_RAD = math.radians(1.5)
     #: pose correction: wall pieces this well aligned and this close along their line are one
@@ -395,6 +397,13 @@ class WallFusion:
     #: point landmarks' noise with CSI-fitted walls, in units of 2 * point_sigma_m
     CORNER_SIGMA_FACTOR = 3.0
     MERGE_DELAY_S = 0.3e-9
+    #: the CSI fit also takes an echo of no wall this near a mapped wall's line and this near
+    #: its orientation (_unassigned_near_walls)
+    CSI_ASSOCIATION_M = 0.5
+    CSI_ASSOCIATION_DEG = 25.0
+    #: a CSI fit of a pose is reused while its wall stays this near where it was fitted from
+    FIT_REUSE_M = 0.02
+    FIT_REUSE_DEG = 0.5
 
     def __init__(self, radar, settings=None):
         if not isinstance(radar, RadarGeometry):
@@ -891,7 +900,7 @@ class WallFusion:
         return ghost
 
     # -- slab correction -------------------------------------------------------------------
-    def _csi_shifts(self, det, state, poses):
+    def _csi_shifts(self, det, state, poses, ghosts):
         """Per-echo corrections from the CSI: each wall echo is replaced by the specular path
         of its wall fitted on that pose's CSI alone with the exact slab echo model
         (wall_refinement.CsiWallRefiner.fit_echo), the other walls' echoes and the unexplained
@@ -901,19 +910,69 @@ class WallFusion:
         _, wall_cls = self._classify(state)
         paths = [[(q["aoa_rad"], q["delay_s"]) for q in g.paths] for g in self.groups]
         self.refiner.set_map(state["walls"], poses, paths, [c == HIDDEN for c in wall_cls])
+        labels = state["labels"]
+        group = det["group"]
+        echo_of = {(int(group[i]), int(labels[i])): i for i in range(n) if labels[i] >= 0}
+        pairs = [(i, int(group[i]), int(labels[i])) for i in range(n) if labels[i] >= 0]
+        pairs += self._unassigned_near_walls(det, state, ghosts, echo_of)
         fits = {}
-        for i in range(n):
-            k = int(state["labels"][i])
-            if k < 0:
-                continue
-            g = int(det["group"][i])
+        for i, g, k in pairs:
             if (g, k) not in fits:
-                fits[(g, k)] = self.refiner.fit_echo(g, k)
+                fits[(g, k)] = self._fit_echo(g, k, state["walls"][k], poses[g], wall_cls[k])
             fit = fits[(g, k)]
             if fit is not None:
                 d_aoa[i] = _wrap(det["aoa"][i] - fit[0])  # removed by _geometry
                 d_delay[i] = det["delay"][i] - fit[1]
         return d_aoa, d_delay
+
+    def _fit_echo(self, g, k, wall, pose, wall_class):
+        """refiner.fit_echo(g, k), reused from an earlier map of this build_map when wall k
+        then lay within FIT_REUSE_M and FIT_REUSE_DEG of where it lies now in pose g's view:
+        the fit finds the same maximum of the same CSI from a start this near, and the pose
+        adjustment's later rounds move the walls by centimetres."""
+        normal_r = bistatic.rotate(wall["normal"], -pose[2])
+        offset_r = float(bistatic.world_to_robot(wall["centre"], pose) @ normal_r)
+        angle_r = math.atan2(normal_r[1], normal_r[0])
+        reuse_rad = math.radians(self.FIT_REUSE_DEG)
+        entries = self._fit_cache.setdefault(g, [])
+        for off, ang, cls, fit in entries:
+            if cls == wall_class and abs(off - offset_r) < self.FIT_REUSE_M and abs(_wrap(ang - angle_r)) < reuse_rad:
+                return fit
+        fit = self.refiner.fit_echo(g, k)
+        if fit is not None:  # not seen depends on the wall's extent, which changes more
+            entries.append((offset_r, angle_r, wall_class, fit))
+        return fit
+
+    def _unassigned_near_walls(self, det, state, ghosts, echo_of):
+        """(echo, group, wall) for the echoes of no wall that lie within CSI_ASSOCIATION_M
+        and CSI_ASSOCIATION_DEG of a mapped wall their pose has no echo of: the estimator
+        places a slab's echo up to a few decimetres off (more than line_tolerance_m), and the
+        CSI fit of that wall at that pose tells where it really is. The nearest such echo per
+        pose and wall."""
+        s = self.settings
+        labels, pw, nw, group = state["labels"], state["pw"], state["nw"], det["group"]
+        free = np.flatnonzero((labels == UNASSIGNED) & ~ghosts)
+        if free.size == 0:
+            return []
+        cos_tol = math.cos(math.radians(self.CSI_ASSOCIATION_DEG))
+        best = {}
+        for k, w in enumerate(state["walls"]):
+            t = (pw[free] - w["centre"]) @ w["direction"]
+            dist = np.abs((pw[free] - w["centre"]) @ w["normal"])
+            ok = (dist < self.CSI_ASSOCIATION_M) & (np.abs(nw[free] @ w["normal"]) > cos_tol) & \
+                 (t > w["t0"] - s.max_gap_m) & (t < w["t1"] + s.max_gap_m)
+            for i, d in zip(free[ok], dist[ok]):
+                g = int(group[i])
+                if (g, k) in echo_of:
+                    continue
+                if (g, k) not in best or d < best[(g, k)][1]:
+                    best[(g, k)] = (int(i), float(d))
+        # an echo goes to one wall: the nearest
+        by_echo = {}
+        for (g, k), (i, d) in best.items():
+            if i not in by_echo or d < by_echo[i][2]:
+                by_echo[i] = (g, k, d)
+        return [(i, g, k) for i, (g, k, _) in by_echo.items()]
 
     def _shifts(self, det, walls, labels, crossings, poses):
         n = det["aoa"].size
@@ -1037,6 +1096,7 @@ class WallFusion:
         started = time.perf_counter()
         self._phase_s = {}
         self._odometry_fit = None
+        self._fit_cache = {}
         s = self.settings
         odometry = np.array([g.pose for g in self.groups]).reshape(-1, 3)
         frame_indices = [g.frame_index for g in self.groups]
@@ -1068,7 +1128,7 @@ class WallFusion:
                                               (det_cls == HIDDEN) | (state["labels"] == UNASSIGNED))
                 state = self._timed("walls and landmarks", self._map_pass, det, poses, zero, min_poses, ghosts)
             if self._fits_on_csi:
-                shifts = self._timed("CSI echo fits", self._csi_shifts, det, state, poses)
+                shifts = self._timed("CSI echo fits", self._csi_shifts, det, state, poses, ghosts)
             else:
                 shifts = self._timed("slab correction", self._shifts, det, state["walls"], state["labels"],
                                      state["crossings"], poses)
@@ -1081,10 +1141,19 @@ class WallFusion:
         if s.correct_poses and len(self.groups) >= 3:
             if self.SEQUENTIAL_PASS:
                 poses = self._timed("pose correction", self._sequential_poses, det, odometry, shifts, ghosts)
-            for _ in range(self.ADJUSTMENT_ROUNDS):
+            # mapping and adjustment alternate until the poses settle: each map associates
+            # more echoes with the walls than the last (a drifting odometry bends the first
+            # map's walls, and the echoes off the bend are nobody's)
+            for rounds in range(1, self.ADJUSTMENT_ROUNDS + 1):
                 state, shifts, ghosts = refine(poses, shifts, ghosts)
                 det_cls, wall_cls = self._classify(state)
+                previous = poses
                 poses = self._timed("pose correction", self._adjust_poses, det, odometry, poses, state, wall_cls)
+                moved_m = float(np.max(np.hypot(*(poses[:, :2] - previous[:, :2]).T)))
+                if moved_m < self.ADJUSTMENT_SETTLED_M:
+                    break
+            stats["adjustment_rounds"] = rounds
+            stats["adjustment_last_move_m"] = moved_m
             state, shifts, ghosts = refine(poses, shifts, ghosts)
             corrected = True
         det_cls, wall_cls = self._classify(state)
