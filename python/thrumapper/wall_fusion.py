@@ -912,9 +912,8 @@ class WallFusion:
         self.refiner.set_map(state["walls"], poses, paths, [c == HIDDEN for c in wall_cls])
         labels = state["labels"]
         group = det["group"]
-        echo_of = {(int(group[i]), int(labels[i])): i for i in range(n) if labels[i] >= 0}
         pairs = [(i, int(group[i]), int(labels[i])) for i in range(n) if labels[i] >= 0]
-        pairs += self._unassigned_near_walls(det, state, ghosts, echo_of)
+        pairs += self._unassigned_near_walls(det, state, ghosts, {(g, k) for _, g, k in pairs})
         fits = {}
         for i, g, k in pairs:
             if (g, k) not in fits:
@@ -930,8 +929,8 @@ class WallFusion:
         then lay within FIT_REUSE_M and FIT_REUSE_DEG of where it lies now in pose g's view:
         the fit finds the same maximum of the same CSI from a start this near, and the pose
         adjustment's later rounds move the walls by centimetres."""
-        normal_r = bistatic.rotate(wall["normal"], -pose[2])
-        offset_r = float(bistatic.world_to_robot(wall["centre"], pose) @ normal_r)
+        point_r, normal_r = self._robot_line(wall, pose)
+        offset_r = float(point_r @ normal_r)
         angle_r = math.atan2(normal_r[1], normal_r[0])
         reuse_rad = math.radians(self.FIT_REUSE_DEG)
         entries = self._fit_cache.setdefault(g, [])
@@ -943,12 +942,12 @@ class WallFusion:
             entries.append((offset_r, angle_r, wall_class, fit))
         return fit
 
-    def _unassigned_near_walls(self, det, state, ghosts, echo_of):
+    def _unassigned_near_walls(self, det, state, ghosts, seen):
         """(echo, group, wall) for the echoes of no wall that lie within CSI_ASSOCIATION_M
         and CSI_ASSOCIATION_DEG of a mapped wall their pose has no echo of: the estimator
         places a slab's echo up to a few decimetres off (more than line_tolerance_m), and the
         CSI fit of that wall at that pose tells where it really is. The nearest such echo per
-        pose and wall."""
+        pose and wall. seen: the (group, wall) pairs that have an echo already."""
         s = self.settings
         labels, pw, nw, group = state["labels"], state["pw"], state["nw"], det["group"]
         free = np.flatnonzero((labels == UNASSIGNED) & ~ghosts)
@@ -963,7 +962,7 @@ class WallFusion:
                  (t > w["t0"] - s.max_gap_m) & (t < w["t1"] + s.max_gap_m)
             for i, d in zip(free[ok], dist[ok]):
                 g = int(group[i])
-                if (g, k) in echo_of:
+                if (g, k) in seen:
                     continue
                 if (g, k) not in best or d < best[(g, k)][1]:
                     best[(g, k)] = (int(i), float(d))
