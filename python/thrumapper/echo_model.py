@@ -172,6 +172,51 @@ class EchoModel:
                     gain = gain * np.where(hit[..., None], t, 1.0)
         return np.einsum("k,kmn->mn", self.weights, gain) * self._lambda_m
 
+    def corner_csi(self, corner_m, normal_a, normal_b, material):
+        """(M, N) CSI of a concave corner's double bounce (TX → face a → face b → RX and TX →
+        b → a → RX), system delay 0, robot frame. The faces are half-lines from corner_m, each
+        running into the side the other faces (a room's inside corner); normals point into
+        the room. A pair (k, m) whose bounce points fall off either face adds nothing. For
+        perpendicular faces the path is the one via the point image of TX through the
+        corner: the echo seems to come from the corner itself (a retro-reflector)."""
+        c = np.asarray(corner_m, float)
+        n_a = np.asarray(normal_a, float) / np.hypot(*normal_a)
+        n_b = np.asarray(normal_b, float) / np.hypot(*normal_b)
+        d_a = np.array([-n_a[1], n_a[0]])
+        d_a = d_a if d_a @ n_b > 0 else -d_a
+        d_b = np.array([-n_b[1], n_b[0]])
+        d_b = d_b if d_b @ n_a > 0 else -d_b
+        total = np.zeros((self.rx_m.shape[0], self.freqs_hz.size), complex)
+        # both arrays in front of both faces (inside the room)
+        in_front = (np.all((self.tx_m - c) @ np.column_stack((n_a, n_b)) > 0, axis=1)[:, None] &
+                    np.all((self.rx_m - c) @ np.column_stack((n_a, n_b)) > 0, axis=1)[None, :])
+        for (n1, d1), (n2, d2) in (((n_a, d_a), (n_b, d_b)), ((n_b, d_b), (n_a, d_a))):
+            image1 = bistatic.mirror(self.tx_m, c, n1)  # (K, 2)
+            image12 = bistatic.mirror(image1, c, n2)
+            v = self.rx_m[None, :, :] - image12[:, None, :]  # (K, M, 2): the last leg's line
+            length_m = np.linalg.norm(v, axis=2)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t2 = ((c - image12) @ n2)[:, None] / (v @ n2)
+                second = image12[:, None, :] + t2[..., None] * v
+                w = second - image1[:, None, :]
+                t1 = np.sum((c - image1)[:, None, :] * n1, axis=2) / (w @ n1)
+                first = image1[:, None, :] + t1[..., None] * w
+                ok = ((second - c) @ d2 >= 0) & ((first - c) @ d1 >= 0) & (t2 > 0) & (t2 < 1) & (t1 > 0) & (t1 < 1) & in_front
+            if not np.any(ok):
+                continue
+            cos2 = np.abs(v @ n2) / length_m
+            cos1 = np.abs(w @ n1) / np.linalg.norm(w, axis=2)
+            if material is None:
+                gamma = np.ones((1, 1, self.freqs_hz.size), complex)  # two conductor bounces: (−1)²
+            else:
+                gamma = self.coefficients(material, np.where(ok, cos1, 1.0), 0) * \
+                    self.coefficients(material, np.where(ok, cos2, 1.0), 0)
+            phase = np.multiply.outer(length_m, self._k_hz)
+            gain = gamma * (np.cos(phase) - 1j * np.sin(phase))
+            gain *= (ok / (4.0 * np.pi * length_m))[..., None]
+            total += np.einsum("k,kmn->mn", self.weights, gain) * self._lambda_m
+        return total
+
     # -- a one-path fit ------------------------------------------------------------------
     def _fit_surface(self, h, angles_rad, delays_s):
         a = np.exp(2j * np.pi * self.carrier_hz / C * (self._rx_rel @ bistatic.bearing_vector(angles_rad).T))  # (M, A)

@@ -108,7 +108,11 @@ class qa_wall_refinement(gr_unittest.TestCase):
 
     def test_corridor_map_targets(self):
         """§4.4: the corridor scan past a room mapped through thrumapper-map's chain: the issue's
-        targets, line-of-sight RMS <= 5 cm and hidden <= 12 cm (the paper: 14 and 25-57 cm)."""
+        targets, line-of-sight RMS <= 5 cm and hidden <= 12 cm (the paper: 14 and 25-57 cm);
+        the corner where the line-of-sight wall meets the end wall (6.525, -0.7), 0.9 m past
+        the last pose and never resolved by JADE, found on the CSI within 0.3 m, with the end
+        wall's face at x = 6.525 m; no wall across the corridor behind the first pose, where
+        the corridor runs on."""
         sc = scene.load_scene(scene_path("paper_4_4_corridor_corner"))
         res = building_sim.simulate_survey(sc, progress=False)
         with tempfile.TemporaryDirectory() as tmp:
@@ -118,6 +122,15 @@ class qa_wall_refinement(gr_unittest.TestCase):
         hidden = scores["classes"]["hidden"]["detections"]["rms_m"]
         self.assertLess(los, 0.05, scores)
         self.assertLess(hidden, 0.12, scores)
+        corner = np.array([6.525, -0.7])
+        gaps = [float(np.hypot(*(c.position_m - corner))) for c in fused.corners]
+        self.assertLess(min(gaps), 0.3, gaps)
+        across = [w for w in fused.walls if abs(w.normal[0]) > 0.9]  # walls facing along the track
+        self.assertEqual(len(across), 1, [(w.start_m, w.end_m) for w in across])
+        self.assertLess(abs(across[0].start_m[0] - 6.525), 0.1)
+        self.assertLess(abs(across[0].end_m[0] - 6.525), 0.1)
+        self.assertEqual(across[0].cls, "line_of_sight")
+        self.assertEqual(fused.stats["end_walls"], 1)
 
     def test_echo_placed_off_its_wall_is_fitted_onto_it(self):
         """The estimator can place a slab's echo farther off its wall than line_tolerance_m.

@@ -404,6 +404,24 @@ class WallFusion:
     #: a CSI fit of a pose is reused while its wall stays this near where it was fitted from
     FIT_REUSE_M = 0.02
     FIT_REUSE_DEG = 0.5
+    #: end walls (_end_walls): a wall across the track is searched for from this far ahead
+    #: of the track's end, in steps of this, out to where its corners with the side walls
+    #: are still this far off the track's axis (nearer the axis they lie in the TX null)...
+    END_WALL_MIN_M = 0.4
+    END_WALL_STEP_M = 0.05
+    END_WALL_MIN_BEARING_DEG = 25.0
+    #: ...with the CSI of the poses within this reach of the end, and the line-of-sight walls
+    #: along the track (within this angle of it) this far to either side as its side walls
+    #: (at least one on each side)...
+    END_WALL_REACH_M = 5.0
+    END_WALL_SIDE_ANGLE_DEG = 15.0
+    END_WALL_SIDE_M = 3.0
+    #: ...and is mapped when its best distance explains this many times what white noise
+    #: would, and this many times what the hypotheses at both ends of the search explain (the
+    #: nearest ones pick up whatever stands beside the track's end; a real end wall rises
+    #: above them)
+    END_WALL_SIGNIFICANCE = 10.0
+    END_WALL_RISE = 1.2
 
     def __init__(self, radar, settings=None):
         if not isinstance(radar, RadarGeometry):
@@ -1074,6 +1092,68 @@ class WallFusion:
                     det_cls[members[behind]] = HIDDEN
         return det_cls, wall_cls
 
+    def _end_walls(self, state, poses, wall_cls):
+        """Walls across the track beyond its two ends, found on the CSI: the concave corners
+        where a corridor's walls meet its end wall are retro-reflectors, but their echoes
+        arrive near the TX null, within a resolution cell of each other and of the end
+        wall's own, and the estimator does not resolve them (docs/mapping.md). Each end's
+        hypotheses (a wall across the track d metres ahead, with its corners on the side
+        walls) are scored on the CSI of the poses near it (CsiWallRefiner.end_wall_scores).
+        Returns dicts: centre, normal, direction, t0, t1 (world), corners [(position (2,),
+        side wall index)], poses, significance (captured / white-noise capture)."""
+        if len(poses) < 2:
+            return []
+        paths = [[(q["aoa_rad"], q["delay_s"]) for q in g.paths] for g in self.groups]
+        self.refiner.set_map(state["walls"], poses, paths, [c == HIDDEN for c in wall_cls])
+        found = []
+        sin_side = math.sin(math.radians(self.END_WALL_SIDE_ANGLE_DEG))
+        for end, sign in ((len(poses) - 1, 1.0), (0, -1.0)):
+            pose = poses[end]
+            u = sign * np.array([math.cos(pose[2]), math.sin(pose[2])])
+            lateral = np.array([-u[1], u[0]])
+            origin = bistatic.robot_to_world(self.robot_c, pose)
+            sides, offsets = [], []
+            for k, w in enumerate(state["walls"]):
+                if wall_cls[k] != LOS or abs(w["normal"] @ u) > sin_side:
+                    continue
+                offset = float((w["centre"] - origin) @ w["normal"])
+                ends = [w["centre"] + t * w["direction"] for t in (w["t0"], w["t1"])]
+                # a side wall: beside the track, running on to within END_WALL_REACH_M of its end
+                if abs(offset) > self.END_WALL_SIDE_M or max((e - origin) @ u for e in ends) < -self.END_WALL_REACH_M:
+                    continue
+                sides.append(k)
+                offsets.append(abs(offset))
+            # a dead end: walls on both sides. With one, a wall's free end (its edge
+            # diffracts, a point-like echo) explains the same echoes as a corner would
+            if len({np.sign((state["walls"][k]["centre"] - origin) @ lateral) for k in sides}) < 2:
+                continue
+            far_m = max(offsets) / math.tan(math.radians(self.END_WALL_MIN_BEARING_DEG))
+            distances = np.arange(self.END_WALL_MIN_M, far_m + 1e-9, self.END_WALL_STEP_M)
+            if distances.size < 3:
+                continue
+            along = (poses[:, :2] - origin) @ u
+            groups = [g for g in range(len(poses)) if -self.END_WALL_REACH_M <= along[g] <= 0.5]
+            side_walls = [state["walls"][k] for k in sides]
+            scores, noise = self.refiner.end_wall_scores(origin, u, distances, groups, side_walls)
+            best = int(np.argmax(scores))
+            if not (0 < best < distances.size - 1 and scores[best] >= self.END_WALL_SIGNIFICANCE * noise[best] and
+                    scores[best] >= self.END_WALL_RISE * max(scores[0], scores[-1])):
+                continue
+            y0, y1, y2 = scores[best - 1:best + 2]
+            den = y0 - 2.0 * y1 + y2
+            d = distances[best] + (0.5 * (y0 - y2) / den * self.END_WALL_STEP_M if den < 0 else 0.0)
+            point = origin + d * u
+            corners = []
+            for k in sides:
+                w = state["walls"][k]
+                corner = np.linalg.solve(np.vstack((w["normal"], u)), [w["centre"] @ w["normal"], point @ u])
+                corners.append((corner, k))
+            ts = [float((c - point) @ lateral) for c, _ in corners]
+            found.append({"centre": point, "normal": -u, "direction": lateral, "t0": min(ts), "t1": max(ts),
+                          "corners": corners, "poses": len(groups),
+                          "significance": float(scores[best] / max(noise[best], 1e-300))})
+        return found
+
     def _legs_from(self, poses, group):
         """World TX and RX centres of the poses of these echoes' groups."""
         n = len(group)
@@ -1156,8 +1236,9 @@ class WallFusion:
             state, shifts, ghosts = refine(poses, shifts, ghosts)
             corrected = True
         det_cls, wall_cls = self._classify(state)
+        end_walls = self._timed("end walls", self._end_walls, state, poses, wall_cls) if self._fits_on_csi else []
         result = self._timed("output", self._assemble, det, poses, odometry, state, det_cls, wall_cls, ghosts,
-                             frame_indices, stats)
+                             frame_indices, stats, end_walls)
         result.stats["poses_corrected"] = corrected
         if self._odometry_fit:
             result.stats.update(self._odometry_fit)
@@ -1456,7 +1537,7 @@ class WallFusion:
         return list(groups.values())
 
     # -- output ----------------------------------------------------------------------------
-    def _assemble(self, det, poses, odometry, state, det_cls, wall_cls, ghosts, frame_indices, stats):
+    def _assemble(self, det, poses, odometry, state, det_cls, wall_cls, ghosts, frame_indices, stats, end_walls=()):
         s = self.settings
         walls_in = state["walls"]
         labels = state["labels"]
@@ -1510,6 +1591,17 @@ class WallFusion:
             corners.append(MapCorner(np.asarray(position, float), confidence,
                                      CLASSES[HIDDEN if np.mean(np.equal(cls_votes, HIDDEN)) > 0.5 else LOS],
                                      n_poses, tuple(int(k) for k in joined)))
+        # an end wall's corners replace the point-landmark corners near them, and extend
+        # their side walls to them
+        for n_end, end_wall in enumerate(end_walls):
+            for position, k in end_wall["corners"]:
+                corners = [c for c in corners if np.hypot(*(c.position_m - position)) > 2.0 * s.corner_wall_distance_m]
+                w = walls_in[k]
+                t = float((position - w["centre"]) @ w["direction"])
+                ends[k][0] = min(ends[k][0], t)
+                ends[k][1] = max(ends[k][1], t)
+                corners.append(MapCorner(np.asarray(position, float), self._end_wall_confidence(end_wall), CLASSES[LOS],
+                                         end_wall["poses"], (int(k), len(walls_in) + n_end)))
         walls = []
         detections = {c: [] for c in CLASSES}
         echoes = {c: [] for c in CLASSES}
@@ -1528,6 +1620,10 @@ class WallFusion:
             for i in members:
                 echoes[cls].append(pw[i])
                 detections[cls].append(self._fused_point(w, poses[group[i]], pw[i]))
+        for end_wall in end_walls:  # no echo of its own: fitted on the CSI alone
+            walls.append(MapWall(end_wall["centre"] + end_wall["t0"] * end_wall["direction"],
+                                 end_wall["centre"] + end_wall["t1"] * end_wall["direction"], end_wall["normal"].copy(),
+                                 CLASSES[LOS], self._end_wall_confidence(end_wall), end_wall["poses"], 0, 0.0))
         for cls in CLASSES:
             detections[cls] = np.array(detections[cls]).reshape(-1, 2)
             echoes[cls] = np.array(echoes[cls]).reshape(-1, 2)
@@ -1536,8 +1632,14 @@ class WallFusion:
                       "scatterers": len(scatterers), "ghosts": int(np.count_nonzero(ghosts)),
                       "wall_echoes": int(np.count_nonzero(labels >= 0)),
                       "corner_echoes": int(np.count_nonzero(labels == CORNER)),
-                      "unassigned_echoes": int(np.count_nonzero((labels == UNASSIGNED) & ~ghosts))})
+                      "unassigned_echoes": int(np.count_nonzero((labels == UNASSIGNED) & ~ghosts)),
+                      "end_walls": len(end_walls)})
         return FusedMap(walls, corners, scatterers, detections, echoes, poses, odometry, frame_indices, stats)
+
+    def _end_wall_confidence(self, end_wall):
+        """0.5 at END_WALL_SIGNIFICANCE, toward 0.9 as the end wall stands out further."""
+        ratio = end_wall["significance"] / self.END_WALL_SIGNIFICANCE
+        return float(0.9 - 0.4 / max(ratio, 1.0))
 
     def _fused_point(self, wall, pose, measured):
         """The fitted wall's specular point seen from this pose (image method between the

@@ -271,6 +271,67 @@ class CsiWallRefiner:
         return None if e is None else (e[1], e[2])
 
 
+    # -- a wall across the end of the track ----------------------------------------------
+    def end_wall_scores(self, origin_m, direction, distances_m, groups, side_walls):
+        """How much of the CSI a wall across the track explains, at each distance ahead.
+
+        The hypothesis at distance d: a wall through origin_m + d·direction facing back
+        along -direction, its own specular echo and its concave corners with each side wall
+        (wall dicts, world: the corridor's walls that run on toward it), each with a free
+        complex gain per frame (the end wall is seen in the TX null, where the modelled
+        amplitudes are least sure). Per group, the mapped walls' echoes and the cancelled
+        direct path are projected out of the data and of the hypothesis first.
+
+        Returns (J (D,), noise (D,)): the data energy the hypothesis captures summed over the
+        groups, and what it would capture of the residual if that were white noise (its rank
+        over the residual's dimension, times the residual energy)."""
+        u = np.asarray(direction, float) / np.hypot(*direction)
+        origin = np.asarray(origin_m, float)
+        prepared = []
+        for g in groups:
+            if g not in self.poses:
+                continue
+            data, pose = self.poses[g], self.world_poses[g]
+            cols = [e[0] for j, w in enumerate(self.walls)
+                    for e in [self._echo(data, w, pose, self._crossed_for(j))] if e is not None]
+            if data.direct is not None:
+                cols.append(data.direct)
+            basis = None
+            if cols:
+                q, r = np.linalg.qr(np.array(cols).T)
+                basis = q[:, np.abs(np.diag(r)) > 1e-9 * np.abs(r).max()]
+            residual = self._project_out(data.rows.T, basis).T
+            rank = 0 if basis is None else basis.shape[1]
+            prepared.append((g, data, pose, basis, residual, float(np.sum(np.abs(residual) ** 2)),
+                             residual.shape[1] - rank))
+        scores = np.zeros(len(distances_m))
+        noise = np.zeros(len(distances_m))
+        for i, d in enumerate(distances_m):
+            point = origin + float(d) * u
+            corners = []
+            for w in side_walls:
+                a = np.vstack((w["normal"], u))
+                if abs(np.linalg.det(a)) < 1e-6:
+                    continue
+                corners.append((np.linalg.solve(a, [w["centre"] @ w["normal"], point @ u]), w["normal"]))
+            for g, data, pose, basis, residual, energy, dims in prepared:
+                point_r = bistatic.world_to_robot(point, pose)
+                normal_r = bistatic.rotate(-u, -pose[2])
+                if (self.tx_c - point_r) @ normal_r <= 0 or (self.rx_c - point_r) @ normal_r <= 0:
+                    continue  # the arrays are not in front of it
+                columns = [data.model.echo_csi(point_r, normal_r, self.material)]
+                for corner, side_normal in corners:
+                    columns.append(data.model.corner_csi(bistatic.world_to_robot(corner, pose),
+                                                         bistatic.rotate(side_normal, -pose[2]), normal_r, self.material))
+                v = self._project_out(np.array([(c * self._sys).ravel() for c in columns]).T, basis)
+                q, r = np.linalg.qr(v)
+                diag = np.abs(np.diag(r))
+                q = q[:, diag > 1e-9 * max(diag.max(), 1e-300)]
+                scores[i] += float(np.sum(np.abs(residual @ q.conj()) ** 2))
+                noise[i] += energy * q.shape[1] / max(dims, 1)
+        return scores, noise
+
+
 def _quadratic_search(f, max_x, max_y, step_x, step_y, final_x, final_y):
     """Maximise f(x, y) over |x| <= max_x, |y| <= max_y from (0, 0): evaluate the 3x3
     stencil around the best point, jump to the maximum of the quadratic through it when that
