@@ -190,6 +190,15 @@ def rotate(vectors, angle_rad):
     return np.stack((c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]), axis=-1)
 
 
+def lines_meet(point_a, normal_a, point_b, normal_b, min_sin=1e-6):
+    """Where two lines (a point on each and its normal) meet, (2,). Raises GeometryError when
+    they are parallel to within min_sin (the sine of the angle between them)."""
+    a = np.vstack((np.asarray(normal_a, float), np.asarray(normal_b, float)))
+    if abs(np.linalg.det(a)) < min_sin * np.hypot(*a[0]) * np.hypot(*a[1]):
+        raise GeometryError("lines_meet: the lines are parallel")
+    return np.linalg.solve(a, [np.dot(point_a, normal_a), np.dot(point_b, normal_b)])
+
+
 def segments_cross(p0, p1, a, b):
     """Whether segment p0→p1 crosses segment a→b (proper crossing), broadcasting over leading
     dimensions: p0, p1 (..., 2) against a, b (..., 2)."""

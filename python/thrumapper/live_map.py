@@ -215,13 +215,19 @@ class live_map(gr.basic_block):
             self._trail.append(pose)
             del self._trail[:-self._max_trail]
 
-    def _on_map(self, msg):
+    def _parsed(self, parse, msg):
+        """parse(msg), or None once a malformed message is counted and logged."""
         try:
-            parsed = map_from_pmt(msg)
+            return parse(msg)
         except LiveMapError as err:
             with self._lock:
                 self._counts["malformed"] += 1
             self._warn(f"{err}; skipped")
+            return None
+
+    def _on_map(self, msg):
+        parsed = self._parsed(map_from_pmt, msg)
+        if parsed is None:
             return
         with self._lock:
             self._map = parsed
@@ -244,13 +250,10 @@ class live_map(gr.basic_block):
         self._publish()
 
     def _on_paths(self, msg):
-        try:
-            frame_index, pose, paths = paths_from_pmt(msg)
-        except LiveMapError as err:
-            with self._lock:
-                self._counts["malformed"] += 1
-            self._warn(f"{err}; skipped")
+        parsed = self._parsed(paths_from_pmt, msg)
+        if parsed is None:
             return
+        frame_index, pose, paths = parsed
         with self._lock:
             self._counts["paths"] += 1
             self._frame_index = frame_index

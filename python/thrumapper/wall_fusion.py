@@ -926,8 +926,7 @@ class WallFusion:
         n = det["aoa"].size
         d_aoa, d_delay = np.zeros(n), np.zeros(n)
         _, wall_cls = self._classify(state)
-        paths = [[(q["aoa_rad"], q["delay_s"]) for q in g.paths] for g in self.groups]
-        self.refiner.set_map(state["walls"], poses, paths, [c == HIDDEN for c in wall_cls])
+        self._refiner_map(state, poses, wall_cls)
         labels = state["labels"]
         group = det["group"]
         pairs = [(i, int(group[i]), int(labels[i])) for i in range(n) if labels[i] >= 0]
@@ -941,6 +940,12 @@ class WallFusion:
                 d_aoa[i] = _wrap(det["aoa"][i] - fit[0])  # removed by _geometry
                 d_delay[i] = det["delay"][i] - fit[1]
         return d_aoa, d_delay
+
+    def _refiner_map(self, state, poses, wall_cls):
+        """Hand the CSI refiner this map: its walls, the poses, JADE's paths per group, and
+        which walls are hidden."""
+        paths = [[(q["aoa_rad"], q["delay_s"]) for q in g.paths] for g in self.groups]
+        self.refiner.set_map(state["walls"], poses, paths, [c == HIDDEN for c in wall_cls])
 
     def _fit_echo(self, g, k, wall, pose, wall_class):
         """refiner.fit_echo(g, k), reused from an earlier map of this build_map when wall k
@@ -1100,11 +1105,11 @@ class WallFusion:
         hypotheses (a wall across the track d metres ahead, with its corners on the side
         walls) are scored on the CSI of the poses near it (CsiWallRefiner.end_wall_scores).
         Returns dicts: centre, normal, direction, t0, t1 (world), corners [(position (2,),
-        side wall index)], poses, significance (captured / white-noise capture)."""
+        side wall index)], poses, confidence (0.5 at END_WALL_SIGNIFICANCE times what white
+        noise would explain, toward 0.9 as it stands out further)."""
         if len(poses) < 2:
             return []
-        paths = [[(q["aoa_rad"], q["delay_s"]) for q in g.paths] for g in self.groups]
-        self.refiner.set_map(state["walls"], poses, paths, [c == HIDDEN for c in wall_cls])
+        self._refiner_map(state, poses, wall_cls)
         found = []
         sin_side = math.sin(math.radians(self.END_WALL_SIDE_ANGLE_DEG))
         for end, sign in ((len(poses) - 1, 1.0), (0, -1.0)):
@@ -1143,15 +1148,12 @@ class WallFusion:
             den = y0 - 2.0 * y1 + y2
             d = distances[best] + (0.5 * (y0 - y2) / den * self.END_WALL_STEP_M if den < 0 else 0.0)
             point = origin + d * u
-            corners = []
-            for k in sides:
-                w = state["walls"][k]
-                corner = np.linalg.solve(np.vstack((w["normal"], u)), [w["centre"] @ w["normal"], point @ u])
-                corners.append((corner, k))
+            corners = [(bistatic.lines_meet(state["walls"][k]["centre"], state["walls"][k]["normal"], point, u), k)
+                       for k in sides]
             ts = [float((c - point) @ lateral) for c, _ in corners]
+            ratio = scores[best] / max(noise[best], 1e-300) / self.END_WALL_SIGNIFICANCE
             found.append({"centre": point, "normal": -u, "direction": lateral, "t0": min(ts), "t1": max(ts),
-                          "corners": corners, "poses": len(groups),
-                          "significance": float(scores[best] / max(noise[best], 1e-300))})
+                          "corners": corners, "poses": len(groups), "confidence": float(0.9 - 0.4 / max(ratio, 1.0))})
         return found
 
     def _legs_from(self, poses, group):
@@ -1569,9 +1571,7 @@ class WallFusion:
             position = centre
             if pair is not None:
                 wa, wb = walls_in[pair[0]], walls_in[pair[1]]
-                A = np.vstack((wa["normal"], wb["normal"]))
-                rhs = np.array([wa["centre"] @ wa["normal"], wb["centre"] @ wb["normal"]])
-                intersection = np.linalg.solve(A, rhs)
+                intersection = bistatic.lines_meet(wa["centre"], wa["normal"], wb["centre"], wb["normal"])
                 if np.hypot(*(intersection - centre)) <= s.corner_wall_distance_m:
                     position = intersection
                 else:
@@ -1600,7 +1600,7 @@ class WallFusion:
                 t = float((position - w["centre"]) @ w["direction"])
                 ends[k][0] = min(ends[k][0], t)
                 ends[k][1] = max(ends[k][1], t)
-                corners.append(MapCorner(np.asarray(position, float), self._end_wall_confidence(end_wall), CLASSES[LOS],
+                corners.append(MapCorner(np.asarray(position, float), end_wall["confidence"], CLASSES[LOS],
                                          end_wall["poses"], (int(k), len(walls_in) + n_end)))
         walls = []
         detections = {c: [] for c in CLASSES}
@@ -1623,7 +1623,7 @@ class WallFusion:
         for end_wall in end_walls:  # no echo of its own: fitted on the CSI alone
             walls.append(MapWall(end_wall["centre"] + end_wall["t0"] * end_wall["direction"],
                                  end_wall["centre"] + end_wall["t1"] * end_wall["direction"], end_wall["normal"].copy(),
-                                 CLASSES[LOS], self._end_wall_confidence(end_wall), end_wall["poses"], 0, 0.0))
+                                 CLASSES[LOS], end_wall["confidence"], end_wall["poses"], 0, 0.0))
         for cls in CLASSES:
             detections[cls] = np.array(detections[cls]).reshape(-1, 2)
             echoes[cls] = np.array(echoes[cls]).reshape(-1, 2)
@@ -1635,11 +1635,6 @@ class WallFusion:
                       "unassigned_echoes": int(np.count_nonzero((labels == UNASSIGNED) & ~ghosts)),
                       "end_walls": len(end_walls)})
         return FusedMap(walls, corners, scatterers, detections, echoes, poses, odometry, frame_indices, stats)
-
-    def _end_wall_confidence(self, end_wall):
-        """0.5 at END_WALL_SIGNIFICANCE, toward 0.9 as the end wall stands out further."""
-        ratio = end_wall["significance"] / self.END_WALL_SIGNIFICANCE
-        return float(0.9 - 0.4 / max(ratio, 1.0))
 
     def _fused_point(self, wall, pose, measured):
         """The fitted wall's specular point seen from this pose (image method between the

@@ -187,9 +187,10 @@ class CsiWallRefiner:
             return out
         return crossed
 
-    def _basis(self, g, exclude):
+    def _basis(self, g, exclude, unexplained_paths=True):
         """Orthonormal columns of everything modelled at group g but wall `exclude`: the other
-        walls' echoes, the JADE paths no wall explains (far field), the cancelled direct path."""
+        walls' echoes, the JADE paths no wall explains (far field; without them when not
+        unexplained_paths), the cancelled direct path."""
         s = self.settings
         data, pose = self.poses[g], self.world_poses[g]
         cols, explained = [], []
@@ -200,7 +201,7 @@ class CsiWallRefiner:
             explained.append((e[1], e[2]))
             if j != exclude:
                 cols.append(e[0])
-        for aoa, delay in self.group_paths[g] if g < len(self.group_paths) else ():
+        for aoa, delay in self.group_paths[g] if unexplained_paths and g < len(self.group_paths) else ():
             near = any(abs(math.remainder(aoa - a, 2.0 * math.pi)) < math.radians(s.explained_angle_deg) and
                        abs(delay - d) < s.explained_delay_s for a, d in explained)
             if not near:
@@ -280,7 +281,8 @@ class CsiWallRefiner:
         (wall dicts, world: the corridor's walls that run on toward it), each with a free
         complex gain per frame (the end wall is seen in the TX null, where the modelled
         amplitudes are least sure). Per group, the mapped walls' echoes and the cancelled
-        direct path are projected out of the data and of the hypothesis first.
+        direct path are projected out of the data and of the hypothesis first (not JADE's
+        other paths: near the end wall they are its own corners' echoes, misplaced).
 
         Returns (J (D,), noise (D,)): the data energy the hypothesis captures summed over the
         groups, and what it would capture of the residual if that were white noise (its rank
@@ -292,14 +294,7 @@ class CsiWallRefiner:
             if g not in self.poses:
                 continue
             data, pose = self.poses[g], self.world_poses[g]
-            cols = [e[0] for j, w in enumerate(self.walls)
-                    for e in [self._echo(data, w, pose, self._crossed_for(j))] if e is not None]
-            if data.direct is not None:
-                cols.append(data.direct)
-            basis = None
-            if cols:
-                q, r = np.linalg.qr(np.array(cols).T)
-                basis = q[:, np.abs(np.diag(r)) > 1e-9 * np.abs(r).max()]
+            basis = self._basis(g, None, unexplained_paths=False)
             residual = self._project_out(data.rows.T, basis).T
             rank = 0 if basis is None else basis.shape[1]
             prepared.append((g, data, pose, basis, residual, float(np.sum(np.abs(residual) ** 2)),
@@ -310,10 +305,10 @@ class CsiWallRefiner:
             point = origin + float(d) * u
             corners = []
             for w in side_walls:
-                a = np.vstack((w["normal"], u))
-                if abs(np.linalg.det(a)) < 1e-6:
+                try:
+                    corners.append((bistatic.lines_meet(w["centre"], w["normal"], point, u), w["normal"]))
+                except bistatic.GeometryError:
                     continue
-                corners.append((np.linalg.solve(a, [w["centre"] @ w["normal"], point @ u]), w["normal"]))
             for g, data, pose, basis, residual, energy, dims in prepared:
                 point_r = bistatic.world_to_robot(point, pose)
                 normal_r = bistatic.rotate(-u, -pose[2])
