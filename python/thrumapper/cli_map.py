@@ -21,7 +21,9 @@ the chain (docs/mapping.md):
      correction; each echo of a mapped wall replaced by that wall fitted on its pose's CSI with
      the exact slab echo model of the wall material (the survey's thrumapper:wall_model, else
      --material; --no-csi-refinement: JADE's echoes with the slab model's shift instead, as the
-     GNU Radio block wall_fusion, which gets no CSI, does).
+     GNU Radio block wall_fusion, which gets no CSI, does); a wall across the corridor
+     behind the start, ranged on every pose's CSI, holds the distance travelled (the
+     odometry's scale) where there is one (stats: axial_landmarks, odometry_scale).
 
 outputs:
   MAP.geojson  FORMATS.md's map: walls (class, confidence), detections, corners, trajectory

@@ -11,6 +11,7 @@ import os
 import tempfile
 
 import numpy as np
+import yaml
 from gnuradio import gr_unittest
 
 from gnuradio import thrumapper as tm
@@ -180,6 +181,42 @@ class qa_wall_refinement(gr_unittest.TestCase):
         self.assertGreaterEqual(with_association, 22, (with_association, without))
         self.assertGreaterEqual(with_association, without + 2, (with_association, without))
 
+    def test_axial_profile_ranges_a_wall_behind(self):
+        """A metal wall across the robot's axis 3.0 m behind the arrays' midpoint (x = -3.0;
+        TX centre at -0.35, RX at +0.35): the image of the TX lies at x = -5.65, so the echo
+        travels 6.0 m (20.01 ns). axial_profile looking back (π) peaks at 3.0 m to 2 cm and
+        stands over 10 times above its median (the range sidelobes of 120 MHz)."""
+        data = yaml.safe_load(open(scene_path("paper_4_2_wall_2p2m"), encoding="utf-8"))
+        data["walls"] = [{"name": "across", "segment": [[-3.0, -2.0], [-3.0, 2.0]], "material": "metal"}]
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+        refiner = refiner_for(res)
+        refiner.set_map([], np.zeros((1, 3)), [[]], [])
+        distances = np.arange(0.6, 8.0, 0.01)
+        behind = refiner.axial_profile(0, math.pi, distances)
+        peak = float(distances[np.argmax(behind)])
+        self.assertLess(abs(peak - 3.0), 0.02, peak)
+        self.assertGreater(behind.max() / np.median(behind), 10.0)  # AXIAL_MIN_RATIO is 5
+
+    def test_axial_landmark_fixes_the_odometry_scale(self):
+        """The office survey with wheels that overstate distance by 2 % (40 cm over the 20 m
+        corridor) and drift 0.5°/m in heading. Walls along the corridor say nothing about the
+        distance travelled; the west end wall, 3 m behind the first pose, ranged on every
+        pose's CSI up to 15 m away, does. The ranges scatter by about 0.1 m, so over the ~12 m
+        from which they are taken the scale is known to about 0.6 %: it must come out 1/1.02
+        to 1 % (held at 1 it would be 2 % off), and the last pose within 15 cm of the truth
+        along the corridor (the odometry alone: about 40 cm)."""
+        data = yaml.safe_load(open(scene_path("office_floor_drift"), encoding="utf-8"))
+        data["odometry"]["scale_error"] = 0.02
+        data["frames_per_pose"] = 2
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+        with tempfile.TemporaryDirectory() as tmp:
+            fused, _ = cli_map.map_survey(written_survey(tmp, sc, res, res.poses_odometry), system_delay_s=31e-9)
+        along_m = float(fused.trajectory[-1, 0] - res.poses_true[-1, 0])  # the corridor runs along x
+        self.assertGreaterEqual(fused.stats["axial_landmarks"], 1, fused.stats)
+        self.assertLess(abs(fused.stats["odometry_scale"] - 1.0 / 1.02), 0.01, (along_m, fused.stats))
+        self.assertLess(abs(along_m), 0.15, along_m)
 
 if __name__ == "__main__":
     gr_unittest.run(qa_wall_refinement)

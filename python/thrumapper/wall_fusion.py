@@ -377,6 +377,10 @@ class WallFusion:
     ADJUSTMENT_ROUNDS = 8
     #: ...stopping early once no pose moves this far in a round
     ADJUSTMENT_SETTLED_M = 0.01
+    #: ...each round after the first moving the poses this fraction of the way to the
+    #: adjustment's solution (without it the office rounds swung 4-17 cm back and forth as
+    #: echoes changed walls, and did not settle in 8)
+    ADJUSTMENT_RELAXATION = 0.5
     #: repeated frames' paths closer than these are one echo
     MERGE_ANGLE_RAD = math.radians(1.5)
     #: pose correction: wall pieces this well aligned and this close along their line are one
@@ -422,6 +426,29 @@ class WallFusion:
     #: above them)
     END_WALL_SIGNIFICANCE = 10.0
     END_WALL_RISE = 1.2
+    #: axial landmarks (_axial_landmarks): walls across the track ahead of or behind it, ranged
+    #: on each pose's CSI from AXIAL_MIN_M to AXIAL_MAX_M in steps of AXIAL_STEP_M along the
+    #: robot's axis (nearer, every pose's profile peaks on the leftovers of the side walls'
+    #: echoes), on a track whose headings stay within AXIAL_HEADING_DEG of each other, in a
+    #: direction the TX beam lights within AXIAL_MIN_TX_GAIN_DB of its peak...
+    AXIAL_MIN_M = 1.5
+    AXIAL_MAX_M = 15.0
+    AXIAL_STEP_M = 0.025
+    AXIAL_HEADING_DEG = 20.0
+    AXIAL_MIN_TX_GAIN_DB = -25.0
+    #: ...a pose's range is its profile's peak within AXIAL_WINDOW_M of where the survey's
+    #: best-supported wall puts it, when that peak stands AXIAL_MIN_RATIO times above the
+    #: profile's median; the wall is a landmark when AXIAL_MIN_POSES ranges agree on it within
+    #: AXIAL_AGREE_M and grow with the distance the wheels report at a rate within
+    #: AXIAL_MAX_RATE_ERROR of one (as a wall across the axis does), measured to
+    #: AXIAL_RATE_SIGMA; each range counts with AXIAL_SIGMA_M in the pose adjustment
+    AXIAL_WINDOW_M = 0.25
+    AXIAL_MIN_RATIO = 5.0
+    AXIAL_MIN_POSES = 8
+    AXIAL_MAX_RATE_ERROR = 0.03
+    AXIAL_RATE_SIGMA = 0.01
+    AXIAL_AGREE_M = 0.3
+    AXIAL_SIGMA_M = 0.1
 
     def __init__(self, radar, settings=None):
         if not isinstance(radar, RadarGeometry):
@@ -1156,6 +1183,106 @@ class WallFusion:
                           "corners": corners, "poses": len(groups), "confidence": float(0.9 - 0.4 / max(ratio, 1.0))})
         return found
 
+    def _axial_landmarks(self, state, poses, wall_cls, previous=()):
+        """Walls across the track, ahead of its end or behind its start, ranged from each pose
+        on the CSI: the along-track landmarks the pose adjustment needs for the odometry's
+        scale (walls along the track fix only the cross-track position and the heading).
+
+        A corridor's end wall answers from ten metres and more, at delays beyond the
+        estimator's range. Each pose's axial_profile (the CSI's energy from a wall across its
+        axis at each distance, the mapped walls projected out) votes for the along-track
+        position of such a wall (distance travelled plus or minus the range); the
+        best-supported position beyond each end is ranged pose by pose at its profile's peak
+        near there. It need not be an end wall (anything across the corridor at one place
+        serves), so it is not drawn on the map. Only directions the TX beam lights count:
+        ahead, in the null steered at the receiver (44 dB down on the ThruMapper radar), the
+        office scenes' profiles peak on something 2 m short of the end wall whose ranges
+        grow 0.8 % faster than the distance travelled: not a wall across the axis.
+        previous: the landmarks of the last round; where one was found its position is ranged
+        again rather than voted for anew (the vote is the fragile step: the near-field
+        leftovers of the side walls' echoes outshine a far wall at every pose).
+        Returns dicts: sign (+1 ahead, -1 behind), ranges [(group, distance along the
+        robot's axis from the arrays' midpoint, m)], position_m (along the track from the
+        first pose), rate (range change per metre the wheels reported)."""
+        P = len(poses)
+        if P < self.AXIAL_MIN_POSES or self.refiner is None:
+            return []
+        headings = np.array([g.pose[2] for g in self.groups])
+        if np.max(np.abs(_wrap(headings - headings[0]))) > math.radians(self.AXIAL_HEADING_DEG):
+            return []  # not one straight track: the distance travelled is not a position along it
+        self._refiner_map(state, poses, wall_cls)
+        along = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))))
+        odometry = np.array([g.pose for g in self.groups])
+        reported = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(odometry[:, :2], axis=0).T))))
+        distances = np.arange(self.AXIAL_MIN_M, self.AXIAL_MAX_M + 1e-9, self.AXIAL_STEP_M)
+        found = []
+        for sign in (1.0, -1.0):
+            if self._tx_gain_db(0.0 if sign > 0 else math.pi) < self.AXIAL_MIN_TX_GAIN_DB:
+                continue
+            ratios = {}
+            for g in range(P):
+                profile = self.refiner.axial_profile(g, 0.0 if sign > 0 else math.pi, distances)
+                if profile is not None:
+                    ratios[g] = profile / max(float(np.median(profile)), 1e-300)
+            if len(ratios) < self.AXIAL_MIN_POSES:
+                continue
+            # candidates beyond the track's end: the robot went through everything before it
+            if sign > 0:
+                positions = np.arange(along[-1] + self.AXIAL_MIN_M, along[-1] + self.AXIAL_MAX_M, self.AXIAL_STEP_M)
+            else:
+                positions = np.arange(-self.AXIAL_MAX_M, -self.AXIAL_MIN_M, self.AXIAL_STEP_M)
+            # each pose's vote is capped (a profile 10x its median counts as much as one 1000x):
+            # a wall across the track is seen from many poses, the strong near-field leftovers
+            # of the direct path only at short range from a few
+            votes = np.zeros(positions.size)
+            for g, ratio in ratios.items():
+                votes += np.interp(sign * (positions - along[g]), distances, np.clip(np.log10(np.maximum(ratio, 1.0)), 0.0, 1.0),
+                                   left=0.0, right=0.0)
+            best = float(positions[int(np.argmax(votes))])
+            best = next((a["position_m"] for a in previous if a["sign"] == sign), best)
+            ranges = []
+            for g, ratio in ratios.items():
+                window = np.flatnonzero(np.abs(distances - sign * (best - along[g])) <= self.AXIAL_WINDOW_M)
+                if window.size < 3:
+                    continue
+                i = int(window[np.argmax(ratio[window])])
+                if not (0 < i < distances.size - 1 and ratio[i] >= self.AXIAL_MIN_RATIO and
+                        ratio[i] >= ratio[i - 1] and ratio[i] >= ratio[i + 1]):
+                    continue
+                y0, y1, y2 = ratio[i - 1:i + 2]
+                den = y0 - 2.0 * y1 + y2
+                ranges.append((g, float(distances[i] + (0.5 * (y0 - y2) / den * self.AXIAL_STEP_M if den < 0 else 0.0))))
+            if len(ranges) < self.AXIAL_MIN_POSES:
+                continue
+            implied = np.array([along[g] + sign * d for g, d in ranges])
+            centre = float(np.median(implied))
+            ranges = [r for r, x in zip(ranges, implied) if abs(x - centre) <= self.AXIAL_AGREE_M]
+            if len(ranges) < self.AXIAL_MIN_POSES:
+                continue
+            # a wall across the axis: the range changes as fast as the distance the wheels
+            # report, to within their scale error (a few per cent); not against the adjusted
+            # poses, which other landmarks may have pulled further off than that
+            # ...and that rate must be measured: to AXIAL_RATE_SIGMA (a few ranges over a short
+            # stretch, say off a wall's free end beside the track, would pass by chance)
+            fit, cov = np.polyfit([reported[g] for g, _ in ranges], [d for _, d in ranges], 1, cov=True)
+            rate = abs(float(fit[0]))
+            if abs(rate - 1.0) <= self.AXIAL_MAX_RATE_ERROR and math.sqrt(max(cov[0, 0], 0.0)) <= self.AXIAL_RATE_SIGMA:
+                found.append({"sign": sign, "ranges": ranges, "position_m": centre, "rate": float(rate)})
+        return found
+
+    def _tx_gain_db(self, aoa_rad):
+        """The TX beam's far-field gain toward aoa_rad (robot frame) at the carrier, dB
+        below its peak (null_steering.beam_pattern_db of the radar's TX weights)."""
+        from . import thrumapper_python as core
+
+        r = self.radar
+        weights = [complex(w) for w in r.tx_weights]
+        radar = core.radar_description.make(np.asarray(r.tx_elements_m, float), np.asarray(r.rx_elements_m, float),
+                                            float(r.carrier_hz), [float(f) for f in r.subcarrier_offsets_hz], weights)
+        angles = [float(a) for a in np.linspace(0.0, 2.0 * math.pi, 360, endpoint=False)] + [float(aoa_rad)]
+        pattern = np.asarray(core.null_steering(radar).beam_pattern_db(weights, angles, [float(r.carrier_hz)]))[0]
+        return float(pattern[-1] - pattern.max())
+
     def _legs_from(self, poses, group):
         """World TX and RX centres of the poses of these echoes' groups."""
         n = len(group)
@@ -1225,14 +1352,25 @@ class WallFusion:
             # mapping and adjustment alternate until the poses settle: each map associates
             # more echoes with the walls than the last (a drifting odometry bends the first
             # map's walls, and the echoes off the bend are nobody's)
+            axial = []
             for rounds in range(1, self.ADJUSTMENT_ROUNDS + 1):
                 state, shifts, ghosts = refine(poses, shifts, ghosts)
                 det_cls, wall_cls = self._classify(state)
+                if self._fits_on_csi:
+                    # a landmark once found stays one (its ranges are measured on the CSI) until
+                    # this round's ranging of it passes again
+                    found = self._timed("axial landmarks", self._axial_landmarks, state, poses, wall_cls, axial)
+                    axial = found + [a for a in axial if a["sign"] not in {f["sign"] for f in found}]
                 previous = poses
-                poses = self._timed("pose correction", self._adjust_poses, det, odometry, poses, state, wall_cls)
+                poses = self._timed("pose correction", self._adjust_poses, det, odometry, poses, state, wall_cls, axial)
+                if rounds > 1:
+                    poses = previous + self.ADJUSTMENT_RELAXATION * (poses - previous)
+                    poses[:, 2] = previous[:, 2] + self.ADJUSTMENT_RELAXATION * _wrap(poses[:, 2] - previous[:, 2])
                 moved_m = float(np.max(np.hypot(*(poses[:, :2] - previous[:, :2]).T)))
                 if moved_m < self.ADJUSTMENT_SETTLED_M:
                     break
+            stats["axial_landmarks"] = len(axial)
+            stats["axial_ranges"] = sum(len(a["ranges"]) for a in axial)
             stats["adjustment_rounds"] = rounds
             stats["adjustment_last_move_m"] = moved_m
             state, shifts, ghosts = refine(poses, shifts, ghosts)
@@ -1343,8 +1481,9 @@ class WallFusion:
         self._sequential_fit = {"odometry_scale": float(mu[3]), "odometry_drift_deg_per_m": math.degrees(mu[4])}
         return poses
 
-    def _adjust_poses(self, det, odometry, poses, state, wall_cls):
-        """Least-squares adjustment of every pose with the line-of-sight walls and corners as
+    def _adjust_poses(self, det, odometry, poses, state, wall_cls, axial=()):
+        """Least-squares adjustment of every pose with the line-of-sight walls, corners and
+        axial landmarks (_axial_landmarks: walls across the track, ranged on the CSI) as
         landmarks and the odometry increments as constraints (scipy.optimize.least_squares)."""
         from scipy.optimize import least_squares
         from scipy.sparse import lil_matrix
@@ -1371,13 +1510,28 @@ class WallFusion:
         n_pose = 3 * (P - 1)
         n_wall = 2 * len(lines)
         n_corner = 2 * len(landmarks)
+        n_axial = len(axial)
+        # an axial range is a reflection point on the robot's axis, on a line across the track
+        ax_g = np.array([g for a in axial for g, _ in a["ranges"]], int)
+        ax_slot = np.array([j for j, a in enumerate(axial) for _ in a["ranges"]], int)
+        ax_r = np.array([self.robot_c + np.array([a["sign"] * d, 0.0]) for a in axial for _, d in a["ranges"]]).reshape(-1, 2)
+        ax_lines, ax_normals = [], []
+        for j, a in enumerate(axial):
+            mine = ax_slot == j
+            pw, _ = self._to_world(ax_r[mine], np.zeros((np.count_nonzero(mine), 2)), poses, ax_g[mine])
+            h = poses[ax_g[mine], 2]
+            normal = -a["sign"] * np.array([np.mean(np.cos(h)), np.mean(np.sin(h))])
+            normal /= np.hypot(*normal)
+            ax_normals.append(normal)
+            ax_lines.append(float(np.mean(pw @ normal)))
+        ax_normals = np.array(ax_normals).reshape(-1, 2)
         # the odometry's systematic errors, a scale factor and a heading drift per metre, are
         # estimated with the poses (white per-step noise alone would let a steady drift bend
         # the map to follow it)
         x0 = np.concatenate([poses[1:].reshape(-1),
                              np.array([[math.atan2(walls[k]["normal"][1], walls[k]["normal"][0]),
                                         walls[k]["centre"] @ walls[k]["normal"]] for k in line_rep]).reshape(-1),
-                             np.array([c for c, _ in landmarks]).reshape(-1), [1.0, 0.0]])
+                             np.array([c for c, _ in landmarks]).reshape(-1), np.array(ax_lines).reshape(-1), [1.0, 0.0]])
         steps = [_relative(odometry[g - 1], odometry[g]) for g in range(1, P)]
         sig_xy = np.array([max(s.odometry_scale_sigma * math.hypot(st[0], st[1]), s.odometry_position_sigma_m) for st in steps])
         # the per-step heading noise alone: the steady drift per metre is a parameter below,
@@ -1403,7 +1557,8 @@ class WallFusion:
             ps = np.vstack((first, x[:n_pose].reshape(-1, 3)))
             wl = x[n_pose:n_pose + n_wall].reshape(-1, 2)
             cr = x[n_pose + n_wall:n_pose + n_wall + n_corner].reshape(-1, 2)
-            return ps, wl, cr, x[-2], x[-1]
+            ax = x[n_pose + n_wall + n_corner:n_pose + n_wall + n_corner + n_axial]
+            return ps, wl, cr, ax, x[-2], x[-1]
 
         steps_arr = np.array(steps).reshape(-1, 3)
         step_len = np.hypot(steps_arr[:, 0], steps_arr[:, 1])
@@ -1412,7 +1567,7 @@ class WallFusion:
         prior = [sigma_scale, sigma_drift]
 
         def residuals(x):
-            ps, wl, cr, scale, drift = unpack(x)
+            ps, wl, cr, ax, scale, drift = unpack(x)
             a, b = ps[:-1], ps[1:]
             c, s_ = np.cos(a[:, 2]), np.sin(a[:, 2])
             d = b[:, :2] - a[:, :2]
@@ -1434,9 +1589,12 @@ class WallFusion:
             if len(obs_c):
                 pw, _ = self._to_world(points_r[obs_c_arr], normals_r[obs_c_arr], ps, group[obs_c_arr])
                 out.extend(((pw - cr[obs_c_lm]) / sigma_c).reshape(-1).tolist())
+            if ax_g.size:
+                pw, _ = self._to_world(ax_r, np.zeros_like(ax_r), ps, ax_g)
+                out.extend(((np.sum(pw * ax_normals[ax_slot], axis=1) - ax[ax_slot]) / self.AXIAL_SIGMA_M).tolist())
             return np.array(out) * row_weights[0]
 
-        m = 3 * (P - 1) + 2 + 2 * len(obs_w) + 2 * len(obs_c)
+        m = 3 * (P - 1) + 2 + 2 * len(obs_w) + 2 * len(obs_c) + ax_g.size
         sparsity = lil_matrix((m, x0.size), dtype=int)
         row = 0
         for g in range(1, P):
@@ -1463,6 +1621,11 @@ class WallFusion:
                     sparsity[row + r, 3 * (g - 1):3 * g] = 1
                 sparsity[row + r, n_pose + n_wall + 2 * j:n_pose + n_wall + 2 * j + 2] = 1
             row += 2
+        for g, j in zip(ax_g, ax_slot):
+            if g >= 1:
+                sparsity[row, 3 * (g - 1):3 * g] = 1
+            sparsity[row, n_pose + n_wall + n_corner + j] = 1
+            row += 1
         def solve(x):
             """Cauchy weights by iterated reweighting around plain least squares: scipy's
             robust losses take hundreds of evaluations on a long pose chain and stop short of
@@ -1489,13 +1652,13 @@ class WallFusion:
         jac = solution.jac.toarray() if hasattr(solution.jac, "toarray") else np.asarray(solution.jac)
         cov_x = np.linalg.pinv(jac.T @ jac)
         sigma_fit = np.sqrt(np.maximum(np.diag(cov_x)[-2:], 0.0))
-        _, _, _, scale, drift = unpack(x)
+        _, _, _, _, scale, drift = unpack(x)
         z = np.abs(np.array([scale - 1.0, drift])) / np.maximum(sigma_fit, 1e-12)
         held = bool(np.all(z < self.SYSTEMATIC_SIGNIFICANCE))
         if held:
             prior[:] = [1e-6 * prior[0], 1e-6 * prior[1]]
             x, solution = solve(x0)
-        ps, _, _, scale, drift = unpack(x)
+        ps, _, _, _, scale, drift = unpack(x)
         ps[:, 2] = _wrap(ps[:, 2])
         self._odometry_fit = {"odometry_scale": float(scale), "odometry_drift_deg_per_m": math.degrees(drift),
                               "odometry_scale_sigma": float(sigma_fit[0]),

@@ -273,6 +273,37 @@ class CsiWallRefiner:
 
 
     # -- a wall across the end of the track ----------------------------------------------
+    def axial_profile(self, g, aoa_rad, distances_m):
+        """The energy of group g's CSI that comes from a wall across the robot's axis d metres
+        from the arrays' midpoint, at each d: the mapped walls' echoes and the cancelled
+        direct path projected out, the rest beamformed at aoa_rad (robot frame; 0 ahead, π
+        behind) and matched to the echo of such a wall seen from the RX centre: Σ_k w_k
+        e^{-j2πf|R - I_k(d)|/c} over the TX elements' images I_k(d) in it (the TX beam's own
+        group delay toward π is 0.37 ns on the ThruMapper radar, 5.6 cm of range: a focus
+        on the TX centre's image alone ranged a metal wall 6 cm short). (D,), summed over
+        the frames; None when g has no CSI. A far wall across a corridor is seen this way
+        from many metres away, where the estimator reports nothing (docs/mapping.md)."""
+        if g not in self.poses:
+            return None
+        data = self.poses[g]
+        basis = self._basis(g, None, unexplained_paths=False)
+        residual = self._project_out(data.rows.T, basis).T  # (F, M*N)
+        m = self._rx_rel.shape[0]
+        residual = residual.reshape(residual.shape[0], m, -1)
+        u = bistatic.bearing_vector(aoa_rad)
+        space = np.exp(2j * np.pi * np.outer(self._rx_rel @ u, self.freqs_hz) / C) * self._sys  # (M, N)
+        beam = np.einsum("fmn,mn->fn", residual, space.conj())  # (F, N)
+        centre = 0.5 * (self.tx_c + self.rx_c)
+        tx = np.asarray(self.radar.tx_elements_m, float)  # (K, 2)
+        face_offset = (centre @ u) + np.asarray(distances_m, float)  # (D,) the face's u-coordinate
+        # the image of element k in the face: x_k - 2((x_k·u) - face)u
+        images = tx[None, :, :] - 2.0 * ((tx @ u)[None, :] - face_offset[:, None])[:, :, None] * u  # (D, K, 2)
+        delays_s = np.hypot(*(self.rx_c - images).transpose(2, 0, 1)) / C  # (D, K)
+        weights = data.model.weights
+        echo = np.einsum("k,dkn->dn", weights, np.exp(-2j * np.pi * delays_s[:, :, None] * self.freqs_hz))  # (D, N)
+        norm = np.sum(np.abs(echo) ** 2, axis=1)
+        return np.sum(np.abs(beam @ echo.conj().T) ** 2, axis=0) / np.maximum(norm, 1e-300)
+
     def end_wall_scores(self, origin_m, direction, distances_m, groups, side_walls):
         """How much of the CSI a wall across the track explains, at each distance ahead.
 
