@@ -1260,11 +1260,14 @@ class WallFusion:
             if len(ranges) < self.AXIAL_MIN_POSES:
                 continue
             # a wall across the axis: the range changes as fast as the distance the wheels
-            # report, to within their scale error (a few per cent); not against the adjusted
-            # poses, which other landmarks may have pulled further off than that
-            # ...and that rate must be measured: to AXIAL_RATE_SIGMA (a few ranges over a short
-            # stretch, say off a wall's free end beside the track, would pass by chance)
-            fit, cov = np.polyfit([reported[g] for g, _ in ranges], [d for _, d in ranges], 1, cov=True)
+            # report, to within their scale error (a few per cent; not against the adjusted
+            # poses, which other landmarks may have pulled further off than that), and that
+            # rate must be measured to AXIAL_RATE_SIGMA (a few ranges over a short stretch,
+            # say off a wall's free end beside the track, would pass by chance)
+            travelled = np.array([reported[g] for g, _ in ranges])
+            if np.ptp(travelled) < 1.0:
+                continue  # the robot stood (nearly) still: no rate to measure
+            fit, cov = np.polyfit(travelled, [d for _, d in ranges], 1, cov=True)
             rate = abs(float(fit[0]))
             if abs(rate - 1.0) <= self.AXIAL_MAX_RATE_ERROR and math.sqrt(max(cov[0, 0], 0.0)) <= self.AXIAL_RATE_SIGMA:
                 found.append({"sign": sign, "ranges": ranges, "position_m": centre, "rate": float(rate)})

@@ -93,6 +93,7 @@ class CsiWallRefiner:
         self.freqs_hz = radar.carrier_hz + np.asarray(radar.subcarrier_offsets_hz, float)
         self._sys = np.exp(-2j * np.pi * self.freqs_hz * self.system_delay_s)
         self._models = {}
+        self._axial_cache = {}
         self.poses = {}
         rx = np.asarray(radar.rx_elements_m, float)
         self._rx_rel = rx - rx.mean(axis=0)
@@ -293,16 +294,24 @@ class CsiWallRefiner:
         u = bistatic.bearing_vector(aoa_rad)
         space = np.exp(2j * np.pi * np.outer(self._rx_rel @ u, self.freqs_hz) / C) * self._sys  # (M, N)
         beam = np.einsum("fmn,mn->fn", residual, space.conj())  # (F, N)
-        centre = 0.5 * (self.tx_c + self.rx_c)
-        tx = np.asarray(self.radar.tx_elements_m, float)  # (K, 2)
-        face_offset = (centre @ u) + np.asarray(distances_m, float)  # (D,) the face's u-coordinate
-        # the image of element k in the face: x_k - 2((x_k·u) - face)u
-        images = tx[None, :, :] - 2.0 * ((tx @ u)[None, :] - face_offset[:, None])[:, :, None] * u  # (D, K, 2)
-        delays_s = np.hypot(*(self.rx_c - images).transpose(2, 0, 1)) / C  # (D, K)
-        weights = data.model.weights
-        echo = np.einsum("k,dkn->dn", weights, np.exp(-2j * np.pi * delays_s[:, :, None] * self.freqs_hz))  # (D, N)
-        norm = np.sum(np.abs(echo) ** 2, axis=1)
+        echo, norm = self._axial_echoes(float(aoa_rad), np.asarray(distances_m, float), data.model.weights)
         return np.sum(np.abs(beam @ echo.conj().T) ** 2, axis=0) / np.maximum(norm, 1e-300)
+
+    def _axial_echoes(self, aoa_rad, distances_m, weights):
+        """(D, N) echoes of walls across the axis at the RX centre (robot frame, the same for
+        every pose: computed once per direction, distances and TX weights) and their energies."""
+        key = (aoa_rad, distances_m.tobytes(), np.asarray(weights).tobytes())
+        if key not in self._axial_cache:
+            u = bistatic.bearing_vector(aoa_rad)
+            centre = 0.5 * (self.tx_c + self.rx_c)
+            tx = np.asarray(self.radar.tx_elements_m, float)  # (K, 2)
+            face_offset = (centre @ u) + distances_m  # (D,) the face's u-coordinate
+            # the image of element k in the face: x_k - 2((x_k·u) - face)u
+            images = tx[None, :, :] - 2.0 * ((tx @ u)[None, :] - face_offset[:, None])[:, :, None] * u  # (D, K, 2)
+            delays_s = np.hypot(*(self.rx_c - images).transpose(2, 0, 1)) / C  # (D, K)
+            echo = np.einsum("k,dkn->dn", weights, np.exp(-2j * np.pi * delays_s[:, :, None] * self.freqs_hz))
+            self._axial_cache = {key: (echo, np.sum(np.abs(echo) ** 2, axis=1))}  # one direction at a time
+        return self._axial_cache[key]
 
     def end_wall_scores(self, origin_m, direction, distances_m, groups, side_walls):
         """How much of the CSI a wall across the track explains, at each distance ahead.
