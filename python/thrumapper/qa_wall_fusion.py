@@ -7,7 +7,6 @@ corners, clutter and multipath ghosts), the block with messages, and bad input."
 
 import json
 import math
-import time
 
 import numpy as np
 import pmt
@@ -15,6 +14,7 @@ from gnuradio import blocks, gr, gr_unittest
 
 from gnuradio.thrumapper import bistatic, evaluation
 from gnuradio.thrumapper.survey_blocks import pose_message
+from gnuradio.thrumapper.testing import wait_for
 from gnuradio.thrumapper.wall_fusion import (FusionError, FusionSettings, RadarGeometry, WallFusion, map_to_pmt,
                                              wall_fusion)
 
@@ -313,19 +313,22 @@ class qa_wall_fusion(gr_unittest.TestCase):
         msg = pmt.dict_add(msg, pmt.intern("model_order"), pmt.from_long(len(echoes)))
         return pmt.dict_add(msg, pmt.intern("paths"), vector)
 
-    def run_block(self, post, update_interval=5, expect_maps=1, timeout_s=60.0):
+    def run_block(self, post, update_interval=5, expect_maps=1, timeout_s=60.0, until=None):
+        """Post the messages, wait for expect_maps map messages and, with until(block), for
+        the block to have handled what was posted (a flowgraph stopped earlier drops the
+        messages still queued), then stop the flowgraph."""
         tb = gr.top_block()
         block = wall_fusion(None, material="none", update_interval=update_interval, correct_poses=False)
         sink = blocks.message_debug()
         tb.msg_connect((block, "map"), (sink, "store"))
         tb.start()
         post(block)
-        deadline = time.time() + timeout_s
-        while sink.num_messages() < expect_maps and time.time() < deadline:
-            time.sleep(0.02)
+        wait_for(lambda: sink.num_messages() >= expect_maps, timeout_s)
+        handled = until is None or wait_for(lambda: until(block), 60.0)
         received = sink.num_messages()
         tb.stop()
         tb.wait()
+        self.assertTrue(handled, "the block did not handle the messages posted")
         return block, sink, received
 
     def test_block_messages_in_map_out(self):
@@ -340,7 +343,8 @@ class qa_wall_fusion(gr_unittest.TestCase):
                 for k in range(2):
                     block._post(pmt.intern("paths"), self.paths_message(2 * i + k, wall_echoes(pose, walls)))
 
-        block, sink, received = self.run_block(post, update_interval=5, expect_maps=2)
+        block, sink, received = self.run_block(post, update_interval=5, expect_maps=2,
+                                               until=lambda b: b.num_poses() == len(poses))
         self.assertGreaterEqual(received, 2)
         msg = sink.get_message(received - 1)
         walls_pmt = pmt.dict_ref(msg, pmt.intern("walls"), pmt.PMT_NIL)
@@ -355,6 +359,21 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertEqual(block.num_skipped(), 0)
         self.assertTrue(json.loads(block.map_geojson())["features"])
 
+    def test_block_paths_before_their_pose(self):
+        """The pose and paths ports' queues are not ordered together: a frame's paths can
+        arrive before the pose message for that very frame. The pose message places it at once
+        (not only the next pose message or the end of the stream)."""
+        walls = [([-2.0, -1.0], [12.0, -1.0])]
+        pose = np.array([0.0, 0.0, 0.0])
+
+        def post(block):
+            block._post(pmt.intern("paths"), self.paths_message(4, wall_echoes(pose, walls)))
+            wait_for(lambda: len(block._pending) == 1)  # held: no pose yet
+            block._post(pmt.intern("pose"), pose_message(4, pose))
+
+        block, _, _ = self.run_block(post, update_interval=1, expect_maps=1, until=lambda b: b.num_poses() == 1)
+        self.assertEqual(block.num_skipped(), 0)
+
     def test_block_bad_input(self):
         """A pose out of order, a malformed message, a message that is not a dict: counted."""
         walls = [([-2.0, -1.0], [12.0, -1.0])]
@@ -368,7 +387,7 @@ class qa_wall_fusion(gr_unittest.TestCase):
                 pose = [1.0 + 0.2 * i, 0.0, 0.0]
                 block._post(pmt.intern("paths"), self.paths_message(11 + i, wall_echoes(np.array(pose), walls), pose))
 
-        block, _, _ = self.run_block(post, update_interval=3, expect_maps=2)
+        block, _, _ = self.run_block(post, update_interval=3, expect_maps=2, until=lambda b: b.num_poses() == 6)
         counts = block.skipped_counts()
         self.assertEqual(counts["stale_pose"], 1)
         self.assertEqual(counts["malformed"], 2)
@@ -382,9 +401,10 @@ class qa_wall_fusion(gr_unittest.TestCase):
         def post(block):
             for i in range(5):
                 block._post(pmt.intern("paths"), self.paths_message(i, wall_echoes(np.array([0.2 * i, 0, 0]), walls)))
-            time.sleep(0.2)
 
-        block, _, _ = self.run_block(post, update_interval=2, expect_maps=0, timeout_s=0.0)
+        # all five wait for a pose that never comes, until the flowgraph stops
+        block, _, _ = self.run_block(post, update_interval=2, expect_maps=0, timeout_s=0.0,
+                                     until=lambda b: len(b._pending) == 5)
         self.assertEqual(block.skipped_counts()["no_pose"], 5)
         self.assertEqual(block.num_poses(), 0)
         self.assertEqual(block.last_map().walls, [])
@@ -431,10 +451,8 @@ class qa_wall_fusion(gr_unittest.TestCase):
             tb.msg_connect((jade, "paths"), (fusion, "paths"))
             tb.start()
             # the messages of the last frames may still be queued when the stream ends
-            deadline = time.time() + 60
-            while jade.num_estimated() < res.csi.shape[0] and time.time() < deadline:
-                time.sleep(0.02)
-            time.sleep(0.2)
+            self.assertTrue(wait_for(lambda: jade.num_estimated() >= res.csi.shape[0], 60.0))
+            self.assertTrue(wait_for(lambda: fusion.num_poses() == sc.num_poses, 60.0), fusion.num_poses())
             tb.stop()
             tb.wait()
             self.assertEqual(fusion.num_poses(), sc.num_poses)

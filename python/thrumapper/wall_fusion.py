@@ -2057,10 +2057,11 @@ class wall_fusion(gr.basic_block):
                 self._warn(f"wall_fusion: pose for frame {frame_index} after frame {self._poses[-1][0]}'s; skipped")
                 return
             self._poses.append((frame_index, pose))
-            # frames that waited for a pose, now that a later pose bounds theirs
+            # frames that waited for a pose, now that this pose bounds theirs: its own frame
+            # too (its paths can arrive first: the two ports' queues are not ordered together)
             waiting, self._pending = self._pending, []
             for index, paths in waiting:
-                if index is None or frame_index is None or index < frame_index:
+                if index is None or frame_index is None or index <= frame_index:
                     self._consume(index, None, paths)
                 else:
                     self._pending.append((index, paths))
