@@ -26,6 +26,12 @@ def scene_path(name):
     return os.path.join(SCENES, name + ".yaml")
 
 
+def scene_data(name):
+    """An example scene as a dict, to change before scene.load_scene."""
+    with open(scene_path(name), encoding="utf-8") as handle:
+        return yaml.safe_load(handle)
+
+
 def simulated(name):
     sc = scene.load_scene(scene_path(name))
     return sc, building_sim.simulate_survey(sc, progress=False)
@@ -186,7 +192,7 @@ class qa_wall_refinement(gr_unittest.TestCase):
         TX centre at -0.35, RX at +0.35): the image of the TX lies at x = -5.65, so the echo
         travels 6.0 m (20.01 ns). axial_profile looking back (π) peaks at 3.0 m to 2 cm and
         stands over 10 times above its median (the range sidelobes of 120 MHz)."""
-        data = yaml.safe_load(open(scene_path("paper_4_2_wall_2p2m"), encoding="utf-8"))
+        data = scene_data("paper_4_2_wall_2p2m")
         data["walls"] = [{"name": "across", "segment": [[-3.0, -2.0], [-3.0, 2.0]], "material": "metal"}]
         sc = scene.load_scene(data)
         res = building_sim.simulate_survey(sc, progress=False)
@@ -206,7 +212,7 @@ class qa_wall_refinement(gr_unittest.TestCase):
         from which they are taken the scale is known to about 0.6 %: it must come out 1/1.02
         to 1 % (held at 1 it would be 2 % off), and the last pose within 15 cm of the truth
         along the corridor (the odometry alone: about 40 cm)."""
-        data = yaml.safe_load(open(scene_path("office_floor_drift"), encoding="utf-8"))
+        data = scene_data("office_floor_drift")
         data["odometry"]["scale_error"] = 0.02
         data["frames_per_pose"] = 2
         sc = scene.load_scene(data)

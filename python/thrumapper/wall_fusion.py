@@ -163,6 +163,14 @@ class RadarGeometry:
     def direct_delay_s(self):
         return bistatic.direct_delay_s(self.tx_centre_m, self.rx_centre_m)
 
+    def core(self, tx_weights=None):
+        """This radar as the core's thrumapper.radar_description (its TX weights, or these)."""
+        from . import thrumapper_python as core
+
+        weights = [complex(w) for w in (self.tx_weights if tx_weights is None else tx_weights)]
+        return core.radar_description.make(np.asarray(self.tx_elements_m, float), np.asarray(self.rx_elements_m, float),
+                                           float(self.carrier_hz), [float(f) for f in self.subcarrier_offsets_hz], weights)
+
     @classmethod
     def from_survey(cls, survey):
         return cls(np.asarray(survey.tx_elements_m, float), np.asarray(survey.rx_elements_m, float),
@@ -307,6 +315,18 @@ def _jsonable(value):
 # ----------------------------------------------------------------------------------------
 # Small geometry helpers (world frame)
 # ----------------------------------------------------------------------------------------
+def _peak_offset(y0, y1, y2):
+    """Where the parabola through three equally spaced samples around a maximum y1 peaks,
+    in steps from the middle one (0 when they do not curve down)."""
+    den = y0 - 2.0 * y1 + y2
+    return 0.5 * (y0 - y2) / den if den < 0 else 0.0
+
+
+def _path_length(poses):
+    """(P,) distance along a trajectory of (P, 2+) poses from its first pose."""
+    return np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))))
+
+
 def _wrap(angle):
     return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
 
@@ -472,6 +492,7 @@ class WallFusion:
         self.groups = []
         #: a wall_refinement.CsiWallRefiner when the CSI is given (enable_csi_refinement)
         self.refiner = None
+        self._tx_gains_db = {}  # _tx_gain_db's, by direction
         self.counts = {"messages": 0, "paths": 0, "skipped_nonfinite": 0, "skipped_early": 0, "skipped_far": 0,
                        "skipped_weak": 0}
 
@@ -1171,9 +1192,7 @@ class WallFusion:
             if not (0 < best < distances.size - 1 and scores[best] >= self.END_WALL_SIGNIFICANCE * noise[best] and
                     scores[best] >= self.END_WALL_RISE * max(scores[0], scores[-1])):
                 continue
-            y0, y1, y2 = scores[best - 1:best + 2]
-            den = y0 - 2.0 * y1 + y2
-            d = distances[best] + (0.5 * (y0 - y2) / den * self.END_WALL_STEP_M if den < 0 else 0.0)
+            d = distances[best] + _peak_offset(*scores[best - 1:best + 2]) * self.END_WALL_STEP_M
             point = origin + d * u
             corners = [(bistatic.lines_meet(state["walls"][k]["centre"], state["walls"][k]["normal"], point, u), k)
                        for k in sides]
@@ -1207,13 +1226,12 @@ class WallFusion:
         P = len(poses)
         if P < self.AXIAL_MIN_POSES or self.refiner is None:
             return []
-        headings = np.array([g.pose[2] for g in self.groups])
-        if np.max(np.abs(_wrap(headings - headings[0]))) > math.radians(self.AXIAL_HEADING_DEG):
+        odometry = np.array([g.pose for g in self.groups])
+        if np.max(np.abs(_wrap(odometry[:, 2] - odometry[0, 2]))) > math.radians(self.AXIAL_HEADING_DEG):
             return []  # not one straight track: the distance travelled is not a position along it
         self._refiner_map(state, poses, wall_cls)
-        along = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))))
-        odometry = np.array([g.pose for g in self.groups])
-        reported = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(odometry[:, :2], axis=0).T))))
+        along = _path_length(poses)
+        reported = _path_length(odometry)
         distances = np.arange(self.AXIAL_MIN_M, self.AXIAL_MAX_M + 1e-9, self.AXIAL_STEP_M)
         found = []
         for sign in (1.0, -1.0):
@@ -1249,9 +1267,7 @@ class WallFusion:
                 if not (0 < i < distances.size - 1 and ratio[i] >= self.AXIAL_MIN_RATIO and
                         ratio[i] >= ratio[i - 1] and ratio[i] >= ratio[i + 1]):
                     continue
-                y0, y1, y2 = ratio[i - 1:i + 2]
-                den = y0 - 2.0 * y1 + y2
-                ranges.append((g, float(distances[i] + (0.5 * (y0 - y2) / den * self.AXIAL_STEP_M if den < 0 else 0.0))))
+                ranges.append((g, float(distances[i] + _peak_offset(*ratio[i - 1:i + 2]) * self.AXIAL_STEP_M)))
             if len(ranges) < self.AXIAL_MIN_POSES:
                 continue
             implied = np.array([along[g] + sign * d for g, d in ranges])
@@ -1275,16 +1291,17 @@ class WallFusion:
 
     def _tx_gain_db(self, aoa_rad):
         """The TX beam's far-field gain toward aoa_rad (robot frame) at the carrier, dB
-        below its peak (null_steering.beam_pattern_db of the radar's TX weights)."""
+        below its peak (null_steering.beam_pattern_db of the radar's TX weights); the radar's
+        and so computed once per direction."""
         from . import thrumapper_python as core
 
-        r = self.radar
-        weights = [complex(w) for w in r.tx_weights]
-        radar = core.radar_description.make(np.asarray(r.tx_elements_m, float), np.asarray(r.rx_elements_m, float),
-                                            float(r.carrier_hz), [float(f) for f in r.subcarrier_offsets_hz], weights)
-        angles = [float(a) for a in np.linspace(0.0, 2.0 * math.pi, 360, endpoint=False)] + [float(aoa_rad)]
-        pattern = np.asarray(core.null_steering(radar).beam_pattern_db(weights, angles, [float(r.carrier_hz)]))[0]
-        return float(pattern[-1] - pattern.max())
+        if aoa_rad not in self._tx_gains_db:
+            weights = [complex(w) for w in self.radar.tx_weights]
+            angles = [float(a) for a in np.linspace(0.0, 2.0 * math.pi, 360, endpoint=False)] + [float(aoa_rad)]
+            pattern = np.asarray(core.null_steering(self.radar.core()).beam_pattern_db(
+                weights, angles, [float(self.radar.carrier_hz)]))[0]
+            self._tx_gains_db[aoa_rad] = float(pattern[-1] - pattern.max())
+        return self._tx_gains_db[aoa_rad]
 
     def _legs_from(self, poses, group):
         """World TX and RX centres of the poses of these echoes' groups."""

@@ -121,11 +121,8 @@ class CsiWallRefiner:
     def _direct_response(self, weights):
         """The exact near-field direct TX->RX response (the core's direct_path_response, the
         response jade_pipeline's projector cancels): what the data lacks."""
-        radar = _core.radar_description.make(
-            np.asarray(self.radar.tx_elements_m, float), np.asarray(self.radar.rx_elements_m, float),
-            float(self.radar.carrier_hz), [float(f) for f in self.radar.subcarrier_offsets_hz],
-            [complex(w) for w in weights])
-        return np.asarray(_core.direct_path_response(radar, [complex(w) for w in weights], self.system_delay_s))
+        return np.asarray(_core.direct_path_response(self.radar.core(weights), [complex(w) for w in weights],
+                                                     self.system_delay_s))
 
     # -- the model -----------------------------------------------------------------------
     def _far_field(self, aoa_rad, delay_s):
