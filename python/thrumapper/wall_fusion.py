@@ -989,6 +989,71 @@ class WallFusion:
                 d_delay[i] = det["delay"][i] - fit[1]
         return d_aoa, d_delay
 
+    #: walls confirmed on the CSI pose by pose (CsiWallRefiner.confirm_walls)
+    CONFIRM_WALLS = True
+
+    def _confirm_walls(self, det, state, poses):
+        """The map's walls confirmed on each pose's CSI where they lie, strongest first, and
+        the echoes of no wall against them (CsiWallRefiner.confirm_walls). A wall that fewer
+        than half of the poses that judged it confirm is spurious: its echoes are returned
+        as unconfirmed. An echo of no wall that its pose's CSI does not hold once the walls
+        are explained is returned as a weak blocker: it does not make the echoes behind it
+        hidden (_behind_nearer_echo)."""
+        group, labels, walls = det["group"], state["labels"], state["walls"]
+        n = det["aoa"].size
+        unconfirmed = np.zeros(n, bool)
+        weak = np.zeros(n, bool)
+        if not walls:
+            return unconfirmed, weak
+        _, wall_cls = self._classify(state)
+        self._refiner_map(state, poses, wall_cls)
+        votes = np.zeros((len(walls), 2), int)  # judged, confirmed
+        for g in range(len(self.groups)):
+            if g not in self.refiner.poses:
+                continue
+            at_g = group == g
+            candidates = [k for k, w in enumerate(walls) if np.any(at_g[w["members"]])]
+            loose = np.flatnonzero(at_g & (labels == UNASSIGNED) & ~self._unconfirmed)
+            points = [(state["pw"][i], state["nw"][i]) for i in loose]
+            confirmed, held = self.refiner.confirm_walls(g, candidates, points)
+            for k in candidates:
+                votes[k, 0] += 1
+                votes[k, 1] += k in confirmed
+            weak[loose[~np.asarray(held, bool)]] = True
+        for k, w in enumerate(walls):
+            if votes[k, 1] < 0.5 * votes[k, 0]:
+                unconfirmed[w["members"]] = True
+        return unconfirmed, weak
+
+    def _confirm_thin_walls(self, det, state, poses, shifts):
+        """Walls seen from fewer poses than min_wall_poses (a survey of one or a few poses:
+        there every echo is a wall) confirmed on each pose's CSI, strongest first
+        (CsiWallRefiner.confirm_echoes). Returns (unconfirmed, shifts): the echoes of walls a
+        pose's CSI holds no echo of, and the shifts with the confirmed echoes' from the
+        confirmation's fit (made without the spurious walls in the way)."""
+        group = det["group"]
+        walls = state["walls"]
+        unconfirmed = np.zeros(det["aoa"].size, bool)
+        thin = {k for k, w in enumerate(walls) if np.unique(group[w["members"]]).size < self.settings.min_wall_poses}
+        if not thin:
+            return unconfirmed, shifts
+        d_aoa, d_delay = shifts[0].copy(), shifts[1].copy()
+        _, wall_cls = self._classify(state)
+        self._refiner_map(state, poses, wall_cls)
+        for g in sorted({int(group[i]) for k in thin for i in walls[k]["members"]}):
+            if g not in self.refiner.poses:
+                continue
+            candidates = [k for k in sorted(thin) if np.any(group[walls[k]["members"]] == g)]
+            others = [k for k in range(len(walls)) if k not in thin and self.refiner.sees(g, k)]
+            for k, fit in self.refiner.confirm_echoes(g, candidates, others).items():
+                members = walls[k]["members"][group[walls[k]["members"]] == g]
+                if fit is None:
+                    unconfirmed[members] = True
+                else:
+                    d_aoa[members] = _wrap(det["aoa"][members] - fit[0])
+                    d_delay[members] = det["delay"][members] - fit[1]
+        return unconfirmed, (d_aoa, d_delay)
+
     def _refiner_map(self, state, poses, wall_cls):
         """Hand the CSI refiner this map: its walls, the poses, JADE's paths per group, and
         which walls are hidden."""
@@ -1084,7 +1149,10 @@ class WallFusion:
         for k, w in enumerate(walls):
             labels[w["members"]] = k
         crossings = self._crossings(walls, pw, det["group"], poses, labels)
-        blocked = self._behind_nearer_echo(pw, nw, det["group"], poses, ranges, active & (labels != CORNER))
+        usable = active & (labels != CORNER)
+        if getattr(self, "_weak_blockers", None) is not None and self._weak_blockers.size == usable.size:
+            usable &= ~self._weak_blockers
+        blocked = self._behind_nearer_echo(pw, nw, det["group"], poses, ranges, usable)
         return {"points_r": points_r, "normals_r": normals_r, "pw": pw, "nw": nw, "labels": labels,
                 "walls": walls, "landmarks": landmarks, "crossings": crossings, "blocked": blocked,
                 "poses": poses, "group": det["group"]}
@@ -1341,6 +1409,8 @@ class WallFusion:
         min_poses = max(1, min(s.min_wall_poses, len(self.groups)))
         shifts = (np.zeros(n), np.zeros(n))
         ghosts = np.zeros(n, bool)
+        self._unconfirmed = np.zeros(n, bool)
+        self._weak_blockers = np.zeros(n, bool)
 
         def refine(poses, shifts, ghosts):
             """Map without slab shifts; classes, ghosts and the shifts of each echo from that
@@ -1357,6 +1427,16 @@ class WallFusion:
                 state = self._timed("walls and landmarks", self._map_pass, det, poses, zero, min_poses, ghosts)
             if self._fits_on_csi:
                 shifts = self._timed("CSI echo fits", self._csi_shifts, det, state, poses, ghosts)
+                unconfirmed, shifts = self._timed("CSI confirmation", self._confirm_thin_walls, det, state, poses,
+                                                  shifts)
+                self._unconfirmed |= unconfirmed
+                ghosts = ghosts | unconfirmed
+                if self.CONFIRM_WALLS:
+                    state = self._timed("walls and landmarks", self._map_pass, det, poses, shifts, min_poses, ghosts)
+                    unconfirmed, weak = self._timed("CSI confirmation", self._confirm_walls, det, state, poses)
+                    self._unconfirmed |= unconfirmed
+                    self._weak_blockers = weak
+                    ghosts = ghosts | unconfirmed
             else:
                 shifts = self._timed("slab correction", self._shifts, det, state["walls"], state["labels"],
                                      state["crossings"], poses)
@@ -1400,6 +1480,7 @@ class WallFusion:
         result = self._timed("output", self._assemble, det, poses, odometry, state, det_cls, wall_cls, ghosts,
                              frame_indices, stats, end_walls)
         result.stats["poses_corrected"] = corrected
+        result.stats["unconfirmed_echoes"] = int(np.count_nonzero(self._unconfirmed))
         if self._odometry_fit:
             result.stats.update(self._odometry_fit)
         result.stats["fusion_phases_s"] = dict(self._phase_s)

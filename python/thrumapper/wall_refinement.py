@@ -165,8 +165,9 @@ class CsiWallRefiner:
         self.group_paths = group_paths
         self.hidden = list(hidden)
 
-    def _crossed_for(self, k):
-        """A function (specular point, pose) -> the line-of-sight walls the legs cross."""
+    def _crossed_for(self, k, among=None):
+        """A function (specular point, pose) -> the line-of-sight walls the legs cross (of
+        the walls in `among` when given)."""
         walls, hidden = self.walls, self.hidden
 
         def crossed(spec, pose):
@@ -176,7 +177,7 @@ class CsiWallRefiner:
             tx_w = bistatic.robot_to_world(self.tx_c, pose)
             rx_w = bistatic.robot_to_world(self.rx_c, pose)
             for j, c in enumerate(walls):
-                if j == k or hidden[j]:
+                if j == k or hidden[j] or (among is not None and j not in among):
                     continue
                 a0 = c["centre"] + c["t0"] * c["direction"]
                 a1 = c["centre"] + c["t1"] * c["direction"]
@@ -206,20 +207,18 @@ class CsiWallRefiner:
                 cols.append(self._far_field(aoa, delay))
         if data.direct is not None:
             cols.append(data.direct)
-        if not cols:
-            return None
-        q, r = np.linalg.qr(np.array(cols).T)
-        keep = np.abs(np.diag(r)) > 1e-9 * np.abs(r).max()
-        return q[:, keep]
+        return self._orthonormal(cols)
 
-    def _fit(self, k, groups, pivot, step_m, step_deg):
-        """(offset, rotation, moved wall) maximising J over these groups for wall k."""
+    def _fit(self, k, groups, pivot, step_m, step_deg, base=None, bases=None, crossed=None):
+        """(offset, rotation, moved wall) maximising J over these groups for wall k, moved
+        from `base` (default: the map's wall k), against `bases` (per group; default: every
+        thing else modelled there)."""
         s = self.settings
-        base = self.walls[k]
-        crossed = self._crossed_for(k)
+        base = self.walls[k] if base is None else base
+        crossed = self._crossed_for(k) if crossed is None else crossed
         prepared = []
         for g in groups:
-            basis = self._basis(g, k)
+            basis = self._basis(g, k) if bases is None else bases[g]
             prepared.append((g, self._project_out(self.poses[g].rows.T, basis).T, basis))
 
         def moved_wall(offset, rotation):
@@ -236,12 +235,8 @@ class CsiWallRefiner:
             total = 0.0
             for g, rows, basis in prepared:
                 e = self._echo(self.poses[g], trial, self.world_poses[g], crossed)
-                if e is None:
-                    continue
-                v = self._project_out(e[0], basis)
-                norm = np.vdot(v, v).real
-                if norm > 0:
-                    total += float(np.sum(np.abs(rows @ v.conj()) ** 2) / norm)
+                if e is not None:
+                    total += self._explained(e[0], basis, rows)
             return total
 
         offset, rotation = _quadratic_search(
@@ -269,6 +264,151 @@ class CsiWallRefiner:
         e = self._echo(self.poses[g], fitted, pose, self._crossed_for(k))
         return None if e is None else (e[1], e[2])
 
+    def confirm_echoes(self, g, candidates, confirmed=()):
+        """Which of the walls `candidates` group g's CSI holds an echo of, and where.
+
+        For walls whose evidence is too thin for the fusion's rule of several poses (a survey
+        of one or a few poses, where every JADE path becomes a wall): JADE splits a slab's
+        echo into a main path and weak spurious ones (module docstring), and each spurious
+        one is a wall of its own there. The candidates are confirmed one after another,
+        strongest first, like successive cancellation but with the exact wall echo: each is
+        fitted near where JADE put it on what the direct path, the `confirmed` walls and the
+        candidates confirmed before it leave of the CSI, and the strongest is confirmed when
+        its echo explains at least CONFIRM_SHARE of that remainder and CONFIRM_FLOOR of the
+        CSI's energy. A spurious path is the estimator's reading of energy another wall's
+        exact echo holds: once that wall is confirmed, there is nothing left for it to
+        explain. The confirmed walls are then fitted again, each against all the others
+        (re-centred while a fit stops at its bounds: JADE's main path of a slab can be 2 ns
+        off, 0.4 m at 0.7 m).
+
+        Returns {k: (aoa_rad, delay_s) of the fitted echo, or None when not confirmed}."""
+        data, pose = self.poses[g], self.world_poses[g]
+        total = float(np.sum(np.abs(data.rows) ** 2))
+        fixed = [] if data.direct is None else [data.direct]
+        for j in confirmed:
+            e = self._echo(data, self.walls[j], pose, self._crossed_for(j, set(confirmed)))
+            if e is not None:
+                fixed.append(e[0])
+        accepted = {}  # k -> fitted wall, in the order confirmed
+        remaining = list(candidates)
+
+        def basis_without(k):
+            cols = list(fixed)
+            for j, wall in accepted.items():
+                if j != k:
+                    e = self._echo(data, wall, pose, self._crossed_for(j, set(confirmed) | set(accepted) - {j}))
+                    if e is not None:
+                        cols.append(e[0])
+            return self._orthonormal(cols)
+
+        while remaining and total > 0:
+            basis = basis_without(None)
+            left = float(np.sum(np.abs(self._project_out(data.rows.T, basis)) ** 2))
+            among = set(confirmed) | set(accepted)
+            best = None
+            for k in remaining:  # each from where JADE put it: no walking into others' echoes
+                fitted, share = self._refit(k, g, self.walls[k], basis, among, recentre=0)
+                if fitted is not None and (best is None or share > best[2]):
+                    best = (k, fitted, share)
+            if best is None or best[2] < self.CONFIRM_SHARE * left or best[2] < self.CONFIRM_FLOOR * total:
+                break
+            k = best[0]
+            accepted[k], _ = self._refit(k, g, best[1], basis, among)
+            remaining.remove(k)
+        for _ in range(2):  # each confirmed wall against all the others
+            for k in list(accepted):
+                fitted, _ = self._refit(k, g, accepted[k], basis_without(k), set(confirmed) | set(accepted) - {k})
+                if fitted is not None:
+                    accepted[k] = fitted
+        result = {k: None for k in candidates}
+        for k, wall in accepted.items():
+            e = self._echo(data, wall, pose, self._crossed_for(k, set(confirmed) | set(accepted) - {k}))
+            if e is not None:
+                result[k] = (e[1], e[2])
+        return result
+
+    def confirm_walls(self, g, candidates, points=()):
+        """confirm_echoes for the map's walls where they lie (no fit: their echoes have been
+        fitted already), strongest first, each confirmed when it explains CONFIRM_FLOOR of the
+        CSI's energy once the stronger ones are projected out (not also CONFIRM_SHARE of the
+        remainder: that may hold echoes of walls nobody mapped); then echoes of no wall given
+        as local line-of-sight faces `points` [(centre, normal)], each against the confirmed
+        walls with both tests. Returns (the set of candidates confirmed or not seen from this
+        pose, a list of bools for `points`)."""
+        data, pose = self.poses[g], self.world_poses[g]
+        total = float(np.sum(np.abs(data.rows) ** 2))
+        cols = [] if data.direct is None else [data.direct]
+        echoes = {}
+        for k in candidates:
+            e = self._echo(data, self.walls[k], pose, self._crossed_for(k))
+            if e is not None:
+                echoes[k] = e[0]
+        confirmed = {k for k in candidates if k not in echoes}  # not judged: nothing against them
+        while echoes and total > 0:
+            basis = self._orthonormal(cols)
+            rows = self._project_out(data.rows.T, basis).T
+            k, share = max(((k, self._explained(v, basis, rows)) for k, v in echoes.items()), key=lambda kv: kv[1])
+            if share < self.CONFIRM_FLOOR * total:  # the remainder may hold echoes of no mapped wall
+                break
+            confirmed.add(k)
+            cols.append(echoes.pop(k))
+        basis = self._orthonormal(cols)
+        rows = self._project_out(data.rows.T, basis).T
+        left = float(np.sum(np.abs(rows) ** 2))
+        held = []
+        for centre, normal in points:
+            face = {"centre": np.asarray(centre, float), "normal": np.asarray(normal, float),
+                    "direction": np.array([-normal[1], normal[0]]), "t0": -0.5, "t1": 0.5}
+            e = self._echo(data, face, pose, lambda spec, pose: [])
+            share = 0.0 if e is None else self._explained(e[0], basis, rows)
+            held.append(e is None or (share >= self.CONFIRM_SHARE * left and share >= self.CONFIRM_FLOOR * total))
+        return confirmed, held
+
+    #: a candidate wall is confirmed when its echo explains this share of what the walls
+    #: confirmed before it leave of a pose's CSI...
+    CONFIRM_SHARE = 0.1
+    #: ...and this share of the CSI's energy (-30 dB): below it the remainder is the
+    #: stronger echoes' model error, not an echo
+    CONFIRM_FLOOR = 1e-3
+
+    @staticmethod
+    def _orthonormal(cols):
+        if not cols:
+            return None
+        q, r = np.linalg.qr(np.array(cols).T)
+        keep = np.abs(np.diag(r)) > 1e-9 * np.abs(r).max()
+        return q[:, keep]
+
+    def _refit(self, k, g, wall, basis, accepted, recentre=4):
+        """Wall k fitted on group g's CSI against this basis, from `wall` (rotated about its
+        specular point), re-centred up to `recentre` times while the optimum lies on the
+        search's bounds. (moved wall, J), or (None, 0) when the pose does not see it."""
+        pose, data = self.world_poses[g], self.poses[g]
+        crossed = self._crossed_for(k, accepted)
+        s = self.settings
+        for _ in range(recentre + 1):
+            point_r = bistatic.world_to_robot(wall["centre"], pose)
+            normal_r = bistatic.rotate(wall["normal"], -pose[2])
+            try:
+                _, _, spec_r = bistatic.specular_path(point_r, normal_r, self.tx_c, self.rx_c)
+            except bistatic.GeometryError:
+                return None, 0.0
+            pivot = bistatic.robot_to_world(spec_r, pose)
+            offset, rotation, moved = self._fit(k, [g], pivot, 0.04, 1.0, base=wall, bases={g: basis}, crossed=crossed)
+            if self._echo(data, moved, pose, crossed) is None:
+                return None, 0.0
+            wall = moved
+            if abs(offset) < s.max_offset_m - s.final_offset_step_m and \
+                    abs(rotation) < math.radians(s.max_rotation_deg - s.final_rotation_step_deg):
+                break
+        e = self._echo(data, wall, pose, crossed)
+        return wall, self._explained(e[0], basis, self._project_out(data.rows.T, basis).T)
+
+    def _explained(self, v, basis, rows):
+        """J of one echo v against rows (frames, M*N) already projected away from basis."""
+        v = self._project_out(v, basis)
+        norm = np.vdot(v, v).real
+        return float(np.sum(np.abs(rows @ v.conj()) ** 2) / norm) if norm > 0 else 0.0
 
     # -- a wall across the end of the track ----------------------------------------------
     def axial_profile(self, g, aoa_rad, distances_m):
