@@ -234,6 +234,32 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertLess(abs(0.5 * (outer_wall.start_m[1] + outer_wall.end_m[1]) - 4.0), 0.05)
         self.assertEqual(outer_wall.cls, "hidden")
 
+    def test_gap_between_pieces_of_one_wall_is_inferred(self):
+        """A corridor wall whose echoes are missing for 2 m (x = 2 .. 4) is drawn across the
+        gap as an inferred line-of-sight wall, from one piece's end to the other's, on the wall's
+        line, with less confidence than the pieces and "inferred" in the GeoJSON; the other wall
+        has a 5 m gap (more than LINE_GAP_M, 4 m) and is not joined."""
+        true = straight_poses(0.0, 9.0)
+        south = [([-3.0, -1.0], [2.0, -1.0]), ([4.0, -1.0], [12.0, -1.0])]
+        north = [([-3.0, 1.0], [1.0, 1.0]), ([6.0, 1.0], [12.0, 1.0])]
+        fusion = WallFusion(RADAR, exact_settings(correct_poses=False))
+        for pose in true:
+            fusion.add(pose, wall_echoes(pose, south + north))
+        fused = fusion.build_map()
+        inferred = [w for w in fused.walls if w.inferred]
+        self.assertEqual(len(inferred), 1, inferred)
+        bridge = inferred[0]
+        self.assertEqual(bridge.cls, "line_of_sight")
+        xs = sorted((bridge.start_m[0], bridge.end_m[0]))
+        self.assertLess(abs(xs[0] - 2.0), 0.3, bridge)
+        self.assertLess(abs(xs[1] - 4.0), 0.3, bridge)
+        self.assertLess(max(abs(bridge.start_m[1] + 1.0), abs(bridge.end_m[1] + 1.0)), 0.02, bridge)
+        pieces = [w for w in fused.walls if not w.inferred and abs(w.start_m[1] + 1.0) < 0.1]
+        self.assertLess(bridge.confidence, min(w.confidence for w in pieces))
+        walls_json = [f["properties"] for f in fused.to_geojson()["features"] if f["properties"]["kind"] == "wall"]
+        self.assertEqual(sum(1 for p in walls_json if p["inferred"]), 1)
+        self.assertEqual(fused.stats["inferred_walls"], 1)
+
     def test_corner_is_a_landmark_not_a_wall(self):
         """A dihedral corner ahead (the §4.4–4.5 geometry: the wall meets an end wall): its
         retro-reflection is a corner within 0.3 m of the apex, and the wall beside it stays on

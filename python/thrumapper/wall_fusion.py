@@ -216,6 +216,8 @@ class MapWall:
     num_echoes: int
     rms_m: float  # RMS distance of its echoes' points to the line
     corners: list = field(default_factory=list)
+    #: a gap between two pieces of one line-of-sight wall, drawn without echoes of its own
+    inferred: bool = False
 
     @property
     def length_m(self):
@@ -252,7 +254,7 @@ class FusedMap:
             features.append(_feature("LineString", [_xy(w.start_m), _xy(w.end_m)], {
                 "kind": "wall", "class": w.cls, "confidence": round(float(w.confidence), 4),
                 "num_poses": int(w.num_poses), "num_echoes": int(w.num_echoes), "fit_rms_m": round(float(w.rms_m), 4),
-                "normal": _xy(w.normal), "id": i}))
+                "normal": _xy(w.normal), "id": i, "inferred": bool(w.inferred)}))
         points = self.detections if fused_detections else self.echoes
         for cls in CLASSES:
             if cls in points and len(points[cls]):
@@ -1884,6 +1886,8 @@ class WallFusion:
             for i in members:
                 echoes[cls].append(pw[i])
                 detections[cls].append(self._fused_point(w, poses[group[i]], pw[i]))
+        walls += self._gap_bridges(walls, [k for k, c in enumerate(wall_cls) if c == LOS],
+                                   [walls_in[k] for k in range(len(walls_in))], poses)
         for end_wall in end_walls:  # no echo of its own: fitted on the CSI alone
             walls.append(MapWall(end_wall["centre"] + end_wall["t0"] * end_wall["direction"],
                                  end_wall["centre"] + end_wall["t1"] * end_wall["direction"], end_wall["normal"].copy(),
@@ -1897,8 +1901,38 @@ class WallFusion:
                       "wall_echoes": int(np.count_nonzero(labels >= 0)),
                       "corner_echoes": int(np.count_nonzero(labels == CORNER)),
                       "unassigned_echoes": int(np.count_nonzero((labels == UNASSIGNED) & ~ghosts)),
-                      "end_walls": len(end_walls)})
+                      "end_walls": len(end_walls), "inferred_walls": sum(1 for w in walls if w.inferred)})
         return FusedMap(walls, corners, scatterers, detections, echoes, poses, odometry, frame_indices, stats)
+
+    def _gap_bridges(self, walls, los, fitted, poses, clearance_m=0.3):
+        """Inferred walls across the gaps between consecutive pieces of one line-of-sight
+        wall (_collinear_groups: aligned, on each other's line, at most LINE_GAP_M apart):
+        a corridor wall goes on where its echoes stop (doors, stretches the estimator placed
+        elsewhere), as the classes already assume. Confidence half the weaker piece's; not
+        where the robot drove within clearance_m of the gap."""
+        bridges = []
+        for members in self._collinear_groups([fitted[k] for k in los]):
+            if len(members) < 2:
+                continue
+            pieces = [walls[los[j]] for j in members]
+            direction = fitted[los[members[0]]]["direction"]
+            spans = sorted(((min(w.start_m @ direction, w.end_m @ direction), max(w.start_m @ direction,
+                            w.end_m @ direction), w) for w in pieces), key=lambda item: item[0])
+            reach, last = spans[0][1], spans[0][2]
+            for lo, hi, w in spans[1:]:
+                if lo - reach > 0.05:
+                    a = max((last.start_m, last.end_m), key=lambda q: q @ direction)
+                    b = min((w.start_m, w.end_m), key=lambda q: q @ direction)
+                    d = b - a
+                    t = np.clip(((poses[:, :2] - a) @ d) / max(d @ d, 1e-12), 0.0, 1.0)
+                    clear = np.min(np.hypot(*(poses[:, :2] - (a + t[:, None] * d)).T)) > clearance_m
+                    if clear and np.hypot(*d) <= self.LINE_GAP_M:
+                        normal = last.normal + w.normal
+                        bridges.append(MapWall(a.copy(), b.copy(), normal / np.hypot(*normal), CLASSES[LOS],
+                                               0.5 * min(last.confidence, w.confidence), 0, 0, 0.0, inferred=True))
+                if hi > reach:
+                    reach, last = hi, w
+        return bridges
 
     def _fused_point(self, wall, pose, measured):
         """The fitted wall's specular point seen from this pose (image method between the
@@ -1947,7 +1981,8 @@ def plot_map(fused, png_path, title=None, truth=None, dpi=120):
         xy = np.vstack((w.start_m, w.end_m))
         label = None if w.cls in labelled else f"wall, {w.cls.replace('_', ' ')}"
         labelled.add(w.cls)
-        ax.plot(xy[:, 0], xy[:, 1], "-", color=colours[w.cls], lw=1.0 + 2.5 * w.confidence, label=label)
+        ax.plot(xy[:, 0], xy[:, 1], ":" if w.inferred else "-", color=colours[w.cls], lw=1.0 + 2.5 * w.confidence,
+                label=label)
     for cls in CLASSES:
         if cls in fused.detections and len(fused.detections[cls]):
             d = fused.detections[cls]
