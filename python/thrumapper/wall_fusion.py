@@ -494,6 +494,7 @@ class WallFusion:
         self.groups = []
         #: a wall_refinement.CsiWallRefiner when the CSI is given (enable_csi_refinement)
         self.refiner = None
+        self._weak_blockers = None  # per echo, set by build_map
         self._tx_gains_db = {}  # _tx_gain_db's, by direction
         self.counts = {"messages": 0, "paths": 0, "skipped_nonfinite": 0, "skipped_early": 0, "skipped_far": 0,
                        "skipped_weak": 0}
@@ -1007,8 +1008,7 @@ class WallFusion:
         weak = np.zeros(n, bool)
         if not walls:
             return unconfirmed, weak
-        _, wall_cls = self._classify(state)
-        self._refiner_map(state, poses, wall_cls)
+        self._refiner_map(state, poses)
         votes = np.zeros((len(walls), 2), int)  # judged, confirmed
         for g in range(len(self.groups)):
             if g not in self.refiner.poses:
@@ -1040,8 +1040,7 @@ class WallFusion:
         if not thin:
             return unconfirmed, shifts
         d_aoa, d_delay = shifts[0].copy(), shifts[1].copy()
-        _, wall_cls = self._classify(state)
-        self._refiner_map(state, poses, wall_cls)
+        self._refiner_map(state, poses)
         for g in sorted({int(group[i]) for k in thin for i in walls[k]["members"]}):
             if g not in self.refiner.poses:
                 continue
@@ -1056,9 +1055,11 @@ class WallFusion:
                     d_delay[members] = det["delay"][members] - fit[1]
         return unconfirmed, (d_aoa, d_delay)
 
-    def _refiner_map(self, state, poses, wall_cls):
+    def _refiner_map(self, state, poses, wall_cls=None):
         """Hand the CSI refiner this map: its walls, the poses, JADE's paths per group, and
-        which walls are hidden."""
+        which walls are hidden (wall_cls; classified here when not given)."""
+        if wall_cls is None:
+            _, wall_cls = self._classify(state)
         paths = [[(q["aoa_rad"], q["delay_s"]) for q in g.paths] for g in self.groups]
         self.refiner.set_map(state["walls"], poses, paths, [c == HIDDEN for c in wall_cls])
 
@@ -1152,7 +1153,7 @@ class WallFusion:
             labels[w["members"]] = k
         crossings = self._crossings(walls, pw, det["group"], poses, labels)
         usable = active & (labels != CORNER)
-        if getattr(self, "_weak_blockers", None) is not None and self._weak_blockers.size == usable.size:
+        if self._weak_blockers is not None:  # faces the CSI does not hold (_confirm_walls)
             usable &= ~self._weak_blockers
         blocked = self._behind_nearer_echo(pw, nw, det["group"], poses, ranges, usable)
         return {"points_r": points_r, "normals_r": normals_r, "pw": pw, "nw": nw, "labels": labels,
@@ -1886,8 +1887,7 @@ class WallFusion:
             for i in members:
                 echoes[cls].append(pw[i])
                 detections[cls].append(self._fused_point(w, poses[group[i]], pw[i]))
-        walls += self._gap_bridges(walls, [k for k, c in enumerate(wall_cls) if c == LOS],
-                                   [walls_in[k] for k in range(len(walls_in))], poses)
+        walls += self._gap_bridges(walls, [k for k, c in enumerate(wall_cls) if c == LOS], walls_in, poses)
         for end_wall in end_walls:  # no echo of its own: fitted on the CSI alone
             walls.append(MapWall(end_wall["centre"] + end_wall["t0"] * end_wall["direction"],
                                  end_wall["centre"] + end_wall["t1"] * end_wall["direction"], end_wall["normal"].copy(),

@@ -255,12 +255,7 @@ class CsiWallRefiner:
         if not self.sees(g, k):
             return None
         pose = self.world_poses[g]
-        wall = self.walls[k]
-        point_r = bistatic.world_to_robot(wall["centre"], pose)
-        normal_r = bistatic.rotate(wall["normal"], -pose[2])
-        _, _, spec_r = bistatic.specular_path(point_r, normal_r, self.tx_c, self.rx_c)
-        pivot = bistatic.robot_to_world(spec_r, pose)
-        _, _, fitted = self._fit(k, [g], pivot, 0.04, 1.0)
+        _, _, fitted = self._fit(k, [g], self._pivot(self.walls[k], pose), 0.04, 1.0)
         e = self._echo(self.poses[g], fitted, pose, self._crossed_for(k))
         return None if e is None else (e[1], e[2])
 
@@ -387,13 +382,10 @@ class CsiWallRefiner:
         crossed = self._crossed_for(k, accepted)
         s = self.settings
         for _ in range(recentre + 1):
-            point_r = bistatic.world_to_robot(wall["centre"], pose)
-            normal_r = bistatic.rotate(wall["normal"], -pose[2])
             try:
-                _, _, spec_r = bistatic.specular_path(point_r, normal_r, self.tx_c, self.rx_c)
+                pivot = self._pivot(wall, pose)
             except bistatic.GeometryError:
                 return None, 0.0
-            pivot = bistatic.robot_to_world(spec_r, pose)
             offset, rotation, moved = self._fit(k, [g], pivot, 0.04, 1.0, base=wall, bases={g: basis}, crossed=crossed)
             if self._echo(data, moved, pose, crossed) is None:
                 return None, 0.0
@@ -403,6 +395,14 @@ class CsiWallRefiner:
                 break
         e = self._echo(data, wall, pose, crossed)
         return wall, self._explained(e[0], basis, self._project_out(data.rows.T, basis).T)
+
+    def _pivot(self, wall, pose):
+        """The wall's specular point between the array centres seen from pose (world), the
+        point a fit rotates it about; bistatic.GeometryError when there is none."""
+        point_r = bistatic.world_to_robot(wall["centre"], pose)
+        normal_r = bistatic.rotate(wall["normal"], -pose[2])
+        _, _, spec_r = bistatic.specular_path(point_r, normal_r, self.tx_c, self.rx_c)
+        return bistatic.robot_to_world(spec_r, pose)
 
     def _explained(self, v, basis, rows):
         """J of one echo v against rows (frames, M*N) already projected away from basis."""
