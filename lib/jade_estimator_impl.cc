@@ -14,6 +14,8 @@ namespace {
 const pmt::pmt_t k_frame_index = pmt::mp("frame_index");
 const pmt::pmt_t k_rx_time = pmt::mp("rx_time");
 const pmt::pmt_t k_pose = pmt::mp("pose");
+const pmt::pmt_t k_tx_weights = pmt::mp("tx_weights");
+const pmt::pmt_t k_direct_path_weights = pmt::mp("direct_path_weights");
 
 pmt::pmt_t vector_of(const std::vector<pmt::pmt_t>& items)
 {
@@ -43,7 +45,8 @@ jade_estimator::sptr jade_estimator::make(radar_description::sptr radar,
                                           int max_paths,
                                           int smoothing_window,
                                           double system_delay_s,
-                                          int stages)
+                                          int stages,
+                                          bool attach_csi)
 {
     return gnuradio::make_block_sptr<jade_estimator_impl>(radar,
                                                           num_angles,
@@ -55,7 +58,8 @@ jade_estimator::sptr jade_estimator::make(radar_description::sptr radar,
                                                           max_paths,
                                                           smoothing_window,
                                                           system_delay_s,
-                                                          stages);
+                                                          stages,
+                                                          attach_csi);
 }
 
 std::vector<double> jade_estimator_impl::angle_grid(int count, double min_deg, double max_deg)
@@ -90,7 +94,8 @@ jade_estimator_impl::jade_estimator_impl(radar_description::sptr radar,
                                          int max_paths,
                                          int smoothing_window,
                                          double system_delay_s,
-                                         int stages)
+                                         int stages,
+                                         bool attach_csi)
     : gr::block("jade_estimator",
                 gr::io_signature::make(1, 1, sizeof(gr_complex) * require_radar(radar)->num_rx() *
                                                  radar->num_subcarriers()),
@@ -109,6 +114,7 @@ jade_estimator_impl::jade_estimator_impl(radar_description::sptr radar,
 {
     d_jade.set_system_delay(system_delay_s);
     d_jade.set_stages(stages);
+    d_attach_csi = attach_csi;
     message_port_register_out(d_port);
     set_tag_propagation_policy(TPP_DONT); // tags are re-attached to the matching output item
 }
@@ -134,7 +140,8 @@ int jade_estimator_impl::general_work(int noutput_items,
         std::vector<tag_t> tags;
         get_tags_in_range(tags, 0, abs_in, abs_in + 1);
         uint64_t frame_index = d_frame_counter;
-        pmt::pmt_t rx_time = pmt::PMT_NIL, pose = pmt::PMT_NIL;
+        pmt::pmt_t rx_time = pmt::PMT_NIL, pose = pmt::PMT_NIL, tx_weights = pmt::PMT_NIL,
+                   direct_weights = pmt::PMT_NIL;
         for (const auto& t : tags) {
             if (pmt::eqv(t.key, k_frame_index) && (pmt::is_integer(t.value) || pmt::is_uint64(t.value)))
                 frame_index = pmt::to_uint64(t.value);
@@ -142,16 +149,22 @@ int jade_estimator_impl::general_work(int noutput_items,
                 rx_time = t.value;
             else if (pmt::eqv(t.key, k_pose))
                 pose = t.value;
+            else if (pmt::eqv(t.key, k_tx_weights))
+                tx_weights = t.value;
+            else if (pmt::eqv(t.key, k_direct_path_weights))
+                direct_weights = t.value;
         }
 
         // untagged frames count on from the last index seen, skipped frames included
         d_frame_counter = frame_index + 1;
         std::vector<jade_path> paths;
         int order = 0;
+        double system_delay_s = 0.0;
         try {
             std::lock_guard<std::mutex> lock(d_mutex);
             paths = d_jade.estimate(in + size_t(i) * d_M * d_N, 1);
             order = d_jade.model_order();
+            system_delay_s = d_jade.system_delay();
             std::memcpy(out + produced * spectrum_len,
                         d_jade.spectrum_db().data(),
                         spectrum_len * sizeof(float));
@@ -188,6 +201,15 @@ int jade_estimator_impl::general_work(int noutput_items,
             msg = pmt::dict_add(msg, k_pose, pose);
         msg = pmt::dict_add(msg, pmt::mp("model_order"), pmt::from_long(order));
         msg = pmt::dict_add(msg, pmt::mp("paths"), vector_of(items));
+        if (d_attach_csi) {
+            const gr_complex* frame = in + size_t(i) * d_M * d_N;
+            msg = pmt::dict_add(msg, pmt::mp("csi"), pmt::init_c32vector(size_t(d_M) * d_N, frame));
+            msg = pmt::dict_add(msg, pmt::mp("system_delay_s"), pmt::from_double(system_delay_s));
+            const pmt::pmt_t weights = pmt::is_null(tx_weights) ? direct_weights : tx_weights;
+            if (!pmt::is_null(weights))
+                msg = pmt::dict_add(msg, k_tx_weights, weights);
+            msg = pmt::dict_add(msg, pmt::mp("direct_path_cancelled"), pmt::from_bool(!pmt::is_null(direct_weights)));
+        }
         message_port_pub(d_port, msg);
     }
     consume_each(n_in);

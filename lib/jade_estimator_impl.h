@@ -23,6 +23,7 @@ private:
     std::atomic<uint64_t> d_skipped{ 0 };
     std::atomic<uint64_t> d_estimated{ 0 };
     uint64_t d_frame_counter = 0;
+    std::atomic<bool> d_attach_csi{ false };
     const pmt::pmt_t d_port;
 
     static std::vector<double> angle_grid(int count, double min_deg, double max_deg);
@@ -38,7 +39,8 @@ public:
                         int max_paths,
                         int smoothing_window,
                         double system_delay_s,
-                        int stages);
+                        int stages,
+                        bool attach_csi);
 
     void forecast(int noutput_items, gr_vector_int& ninput_items_required) override;
     int general_work(int noutput_items,
@@ -54,6 +56,8 @@ public:
     void set_model_order(int order) override;
     void set_stages(int stages) override;
     int stages() const override;
+    void set_attach_csi(bool attach_csi) override { d_attach_csi = attach_csi; }
+    bool attach_csi() const override { return d_attach_csi; }
 
     int num_angles() const override { return d_num_angles; }
     int num_delays() const override { return d_num_delays; }

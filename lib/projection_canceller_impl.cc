@@ -19,7 +19,9 @@ class projection_canceller_impl : public projection_canceller
     mutable std::mutex d_mutex; // guards d_proj: messages and setters come from other threads
     path_projector d_proj;
     std::vector<gr_complex> d_weights; // the direct path's weights outside tagged frames
+    const std::vector<gr_complex> d_radar_weights; // ...until weights are set
     const pmt::pmt_t k_tx_weights = pmt::mp("tx_weights");
+    const pmt::pmt_t k_direct_path_weights = pmt::mp("direct_path_weights");
     std::atomic<uint64_t> d_skipped{ 0 };
     std::atomic<uint64_t> d_bad_messages{ 0 };
 
@@ -112,7 +114,8 @@ public:
                     gr::io_signature::make(1, 1, sizeof(gr_complex) * (radar ? radar->num_rx() * radar->num_subcarriers() : 1))),
           d_M(radar ? radar->num_rx() : 0),
           d_N(radar ? radar->num_subcarriers() : 0),
-          d_proj(radar)
+          d_proj(radar),
+          d_radar_weights(radar ? radar->tx_weights() : std::vector<gr_complex>{})
     {
         d_proj.set_system_delay(system_delay_s);
         d_proj.set_paths(degrees_to_radians(aoa_deg), delay_s);
@@ -181,6 +184,15 @@ public:
             }
             for (const auto& t : tags)
                 add_item_tag(0, nitems_written(0) + produced, t.key, t.value);
+            if (d_proj.cancels_direct_path()) { // what wall_fusion's CSI fits must know
+                const auto& used = !frame_weights.empty() ? frame_weights
+                                   : !d_weights.empty()   ? d_weights
+                                                          : d_radar_weights;
+                add_item_tag(0,
+                             nitems_written(0) + produced,
+                             k_direct_path_weights,
+                             pmt::init_c32vector(used.size(), used.data()));
+            }
             produced++;
         }
         consume_each(n);

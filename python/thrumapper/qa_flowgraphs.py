@@ -85,12 +85,14 @@ class qa_flowgraphs(gr_unittest.TestCase):
         """simulated_survey_nogui on the paper's §4.4 corridor (29 poses x 4 frames, seeded):
         the map it writes is scored against the scene's truth.
 
-        Bounds, from the measured run (LoS detections 0.103 m RMS, LoS coverage 78 %, hidden
-        0.30 m RMS, 0.62 m of false wall, trajectory 0.038 m RMS; thrumapper-map on the same
-        survey: 0.115 m LoS, docs/mapping.md) with some room, and tight enough to fail on a
-        broken chain: 0.15 m is an eighth of the 1.25 m range resolution, where a wall placed
-        from the wrong delay cell, a lost direct-path cancellation (the spray below 3 ns
-        becomes walls) or poses not reaching the fusion (an empty map) all land far outside."""
+        jade_estimator attaches each frame's CSI to its paths message and wall_fusion fits the
+        echoes on it, as thrumapper-map does. Measured: line of sight 0.014 m RMS, coverage
+        88 %; hidden 0.031 m, coverage 34 %; no false wall; trajectory 0.034 m (without the
+        CSI: 0.100 / 0.210 m, trajectory 0.025 m; thrumapper-map on the same survey: 0.026 /
+        0.076 m, docs/mapping.md). The bounds are the issue's targets for the walls (5 cm
+        and 12 cm) and fail on a broken chain: the CSI lost on the way (the slab correction's
+        10 cm), a wall placed from the wrong delay cell, a lost direct-path cancellation (the
+        spray below 3 ns becomes walls) or poses not reaching the fusion (an empty map)."""
         from gnuradio.thrumapper import cli_sim, evaluation
 
         work = os.path.join(self.out, "e2e")
@@ -102,7 +104,7 @@ class qa_flowgraphs(gr_unittest.TestCase):
         geojson, png = os.path.join(work, "map.geojson"), os.path.join(work, "map.png")
         run = subprocess.run([sys.executable, os.path.join(self.out, "simulated_survey_nogui.py"),
                               "--survey", survey, "--geojson", geojson, "--png", png, "--system-delay-s", "20e-9"],
-                             cwd=work, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=50)
+                             cwd=work, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=240)
         self.assertEqual(run.returncode, 0, run.stdout)
         self.assertNotIn("Traceback", run.stdout, run.stdout)
         self.assertTrue(os.path.getsize(png) > 10000, "no map picture")
@@ -115,11 +117,12 @@ class qa_flowgraphs(gr_unittest.TestCase):
               f"{hidden['coverage']:.2f}; false wall {scores['false_wall_length_m']:.2f} m; trajectory "
               f"{scores['trajectory']['rms_m']:.3f} m")
         self.assertGreaterEqual(los["detections"]["count"], 30)
-        self.assertLess(los["detections"]["rms_m"], 0.15)
-        self.assertGreater(los["coverage"], 0.6)
+        self.assertLess(los["detections"]["rms_m"], 0.05)
+        self.assertGreater(los["coverage"], 0.8)
         self.assertIsNotNone(hidden["detections"]["rms_m"], "no hidden wall found")
-        self.assertLess(hidden["detections"]["rms_m"], 0.45)
-        self.assertLess(scores["false_wall_length_m"], 1.5)
+        self.assertLess(hidden["detections"]["rms_m"], 0.12)
+        self.assertGreater(hidden["coverage"], 0.2)
+        self.assertLess(scores["false_wall_length_m"], 0.5)
         self.assertEqual(scores["trajectory"]["count"], 29)
         self.assertLess(scores["trajectory"]["rms_m"], 0.08)
 

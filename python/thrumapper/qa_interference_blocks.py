@@ -134,6 +134,65 @@ class qa_interference_blocks(gr_unittest.TestCase):
         self.assertTrue(wait_for(lambda: canc2.rank() == 1 and canc2.num_bad_messages() == 2))
         self.tb.wait()
 
+    def test_canceller_tags_the_weights_it_cancelled_and_jade_passes_them_on(self):
+        """Three frames, each a direct path and a wall echo; the middle one sounded with other
+        weights and tagged "tx_weights" (as survey_source tags an override). The canceller
+        removes each frame's own direct path (the output is the echo alone, projected off it)
+        and tags the weights it used as "direct_path_weights"; jade_estimator with attach_csi
+        passes the frame it estimated on, the system delay and the frame's weights to
+        wall_fusion in its message. Without cancel_direct no frame is tagged, and the message
+        says the direct path is still in."""
+        sc = free_space_scene()
+        radar = radar_of(sc)
+        ns = thrumapper.null_steering(radar)
+        w1 = np.asarray(ns.design(math.radians(300), [], False))
+        w2 = np.asarray(ns.design(math.radians(240), [], False))
+        tsys = 12e-9
+        wall = np.asarray(thrumapper.space_time_manifold(radar, math.radians(243.4), 5.22e-9 + tsys))
+        frames, directs = [], []
+        for w in (w1, w2, w1):
+            d = np.asarray(thrumapper.direct_path_response(radar, list(w), tsys))
+            directs.append(d)
+            frames.append((d + 0.01 * wall).astype(np.complex64))
+        override = gr.tag_utils.python_to_tag((1, pmt.intern("tx_weights"), pmt.init_c64vector(8, list(w2))))
+
+        def run(cancel_direct):
+            tb = gr.top_block()
+            src = blocks.vector_source_c(np.concatenate(frames).tolist(), False, 8 * 64, [override])
+            canc = thrumapper.projection_canceller(radar, cancel_direct=cancel_direct, system_delay_s=tsys)
+            canc.set_tx_weights(list(w1))
+            jade = thrumapper.jade_estimator(radar, 90, 0.0, 360.0, 41, 0.0, 40e-9, 2, 0, tsys, 1, True)
+            tags = blocks.tag_debug(gr.sizeof_gr_complex * 8 * 64, "", "direct_path_weights")
+            tags.set_display(False)
+            msgs = blocks.message_debug()
+            tb.connect(src, canc, jade, blocks.null_sink(gr.sizeof_float * 90 * 41))
+            tb.connect(canc, tags)
+            tb.msg_connect(jade, "paths", msgs, "store")
+            tb.run()
+            self.assertTrue(wait_for(lambda: msgs.num_messages() == 3))
+            return tags.current_tags(), [msgs.get_message(i) for i in range(3)]
+
+        tagged, messages = run(True)
+        self.assertEqual([t.offset for t in tagged], [0, 1, 2])
+        for t, w, d, msg, frame in zip(tagged, (w1, w2, w1), directs, messages, frames):
+            self.assertTrue(np.allclose(pmt.c32vector_elements(t.value), w, atol=1e-6))
+            csi = np.asarray(pmt.c32vector_elements(pmt.dict_ref(msg, pmt.intern("csi"), pmt.PMT_NIL)))
+            r = d / np.linalg.norm(d)
+            echo = 0.01 * (wall - r * np.vdot(r, wall))  # the frame's own direct path is gone
+            self.assertLess(np.linalg.norm(csi - echo), 1e-3 * np.linalg.norm(echo))
+            weights = pmt.dict_ref(msg, pmt.intern("tx_weights"), pmt.PMT_NIL)
+            values = pmt.c64vector_elements(weights) if pmt.is_c64vector(weights) else pmt.c32vector_elements(weights)
+            self.assertTrue(np.allclose(values, w, atol=1e-6))
+            self.assertAlmostEqual(pmt.to_double(pmt.dict_ref(msg, pmt.intern("system_delay_s"), pmt.PMT_NIL)), tsys)
+            self.assertTrue(pmt.to_bool(pmt.dict_ref(msg, pmt.intern("direct_path_cancelled"), pmt.PMT_NIL)))
+
+        tagged, messages = run(False)
+        self.assertEqual(len(tagged), 0)
+        for msg, frame in zip(messages, frames):
+            self.assertFalse(pmt.to_bool(pmt.dict_ref(msg, pmt.intern("direct_path_cancelled"), pmt.PMT_NIL)))
+            csi = np.asarray(pmt.c32vector_elements(pmt.dict_ref(msg, pmt.intern("csi"), pmt.PMT_NIL)))
+            self.assertTrue(np.array_equal(csi, frame))
+
     def test_successive_cancellation_in_the_block(self):
         """jade_estimator with stages: each path's stage is in the message."""
         radar = thrumapper.radar_description.make_uca_pair(subcarriers=128)

@@ -88,6 +88,28 @@ class qa_jade_estimator(gr_unittest.TestCase):
         self.assertLess(abs(a * 2.0 - 268.0), 3.0)
         self.assertLess(abs(d * 0.5e-9 - 5.2e-9), 1.0e-9)
 
+    def test_csi_attached_only_when_asked(self):
+        """attach_csi: the message carries the frame as estimated, bit for bit, and the system
+        delay; no weights when the frame has no weights tag. Off (the default): no CSI."""
+        frame = model_frame(self.radar, [(250.0, 6.0e-9, 1.0)])
+        est = thrumapper.jade_estimator(self.radar, num_angles=90, num_delays=41, system_delay_s=7e-9)
+        self.assertFalse(est.attach_csi())
+        _, msgs = self.run_frames([frame], est)
+        self.assertFalse(pmt.dict_has_key(msgs.get_message(0), pmt.intern("csi")))
+        self.tb = gr.top_block()
+        est = thrumapper.jade_estimator(self.radar, num_angles=90, num_delays=41, system_delay_s=7e-9, attach_csi=True)
+        self.assertTrue(est.attach_csi())
+        _, msgs = self.run_frames([frame, frame], est)
+        self.assertEqual(msgs.num_messages(), 2)
+        msg = msgs.get_message(1)
+        csi = np.asarray(pmt.c32vector_elements(pmt.dict_ref(msg, pmt.intern("csi"), pmt.PMT_NIL)), np.complex64)
+        self.assertTrue(np.array_equal(csi, frame))
+        self.assertEqual(pmt.to_double(pmt.dict_ref(msg, pmt.intern("system_delay_s"), pmt.PMT_NIL)), 7e-9)
+        self.assertFalse(pmt.dict_has_key(msg, pmt.intern("tx_weights")))
+        self.assertFalse(pmt.to_bool(pmt.dict_ref(msg, pmt.intern("direct_path_cancelled"), pmt.PMT_NIL)))
+        est.set_attach_csi(False)
+        self.assertFalse(est.attach_csi())
+
     def test_system_delay_is_removed(self):
         tsys = 23.0e-9
         frame = model_frame(self.radar, [(90.0, 4.0e-9 + tsys, 1.0)])

@@ -419,6 +419,43 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertEqual(counts["malformed"], 2)
         self.assertEqual(block.num_poses(), 6)
 
+    def test_block_bad_csi(self):
+        """CSI attached to paths messages (jade_estimator's attach_csi) that cannot be used: the
+        wrong number of values, a NaN, a "csi" that is not complex, no system delay. Each such
+        frame is skipped and counted, the good ones mapped; a pose that comes without CSI while
+        the others have it is counted in the map's stats (its map falls back to the slab
+        correction)."""
+        walls = [([-2.0, -1.0], [12.0, -1.0])]
+        m, n = len(RadarGeometry.uca_pair().rx_elements_m), len(RadarGeometry.uca_pair().subcarrier_offsets_hz)
+        rng = np.random.default_rng(5)
+        good = (rng.standard_normal(m * n) + 1j * rng.standard_normal(m * n)) * 1e-3
+        nan = good.copy()
+        nan[7] = np.nan
+
+        def with_csi(msg, values, delay=20e-9, complex_vector=True):
+            vector = pmt.init_c32vector(len(values), [complex(v) for v in values]) if complex_vector \
+                else pmt.init_f32vector(len(values), [float(v.real) for v in values])
+            msg = pmt.dict_add(msg, pmt.intern("csi"), vector)
+            if delay is not None:
+                msg = pmt.dict_add(msg, pmt.intern("system_delay_s"), pmt.from_double(delay))
+            return pmt.dict_add(msg, pmt.intern("direct_path_cancelled"), pmt.PMT_T)
+
+        def post(block):
+            cases = [(good, {}), (good[:100], {}), (nan, {}), (good, {"delay": None}),
+                     (good, {"complex_vector": False}), (good, {}), (None, {})]
+            for i, (values, options) in enumerate(cases):
+                pose = [0.2 * i, 0.0, 0.0]
+                msg = self.paths_message(i, wall_echoes(np.array(pose), walls), pose)
+                block._post(pmt.intern("paths"), msg if values is None else with_csi(msg, values, **options))
+
+        block, _, _ = self.run_block(post, update_interval=100, expect_maps=0, timeout_s=0.0,
+                                     until=lambda b: sum(b.skipped_counts().values()) + b.num_poses() >= 7)
+        counts = block.skipped_counts()
+        self.assertEqual(counts["csi"], 2)  # the wrong size and the NaN
+        self.assertEqual(counts["malformed"], 2)  # no system delay, not complex
+        self.assertEqual(block.num_poses(), 3)
+        self.assertEqual(block.last_map().stats["poses_without_csi"], 1)
+
     def test_block_without_poses(self):
         """Paths but no pose at all: nothing to place them with. They wait, and are counted as
         skipped when the flowgraph stops; the map is empty."""

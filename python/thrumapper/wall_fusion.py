@@ -381,6 +381,8 @@ class _PoseGroup:
     frame_index: int
     frames: int = 0
     paths: list = field(default_factory=list)  # dicts: aoa_rad, delay_s, power, stage, count
+    csi: list = field(default_factory=list)  # (M, N) frames for the refiner, with csi_weights
+    csi_weights: np.ndarray = None
 
 
 class WallFusion:
@@ -403,6 +405,9 @@ class WallFusion:
     #: adjustment's solution (without it the office rounds swung 4-17 cm back and forth as
     #: echoes changed walls, and did not settle in 8)
     ADJUSTMENT_RELAXATION = 0.5
+    #: a pose's CSI fits use its latest frames up to this many (a robot standing still, or a
+    #: survey replayed in a loop, would otherwise pile up frames without end)
+    MAX_CSI_FRAMES_PER_POSE = 16
     #: repeated frames' paths closer than these are one echo
     MERGE_ANGLE_RAD = math.radians(1.5)
     #: pose correction: wall pieces this well aligned and this close along their line are one
@@ -531,20 +536,30 @@ class WallFusion:
 
     @property
     def _fits_on_csi(self):
-        """Whether wall echoes are fitted on the CSI (else shifted by the slab model)."""
-        return self.refiner is not None and bool(self.refiner.poses)
+        """Whether wall echoes are fitted on the CSI (else shifted by the slab model): every
+        pose group has its CSI (a group without would have no echo fits at all)."""
+        return self.refiner is not None and bool(self.groups) and len(self.refiner.poses) == len(self.groups)
 
-    def add(self, pose, paths, frame_index=None, csi=None, tx_weights=None):
+    @property
+    def groups_without_csi(self):
+        """Pose groups that came without CSI while the CSI refinement is on."""
+        return 0 if self.refiner is None else len(self.groups) - len(self.refiner.poses)
+
+    def add(self, pose, paths, frame_index=None, csi=None, tx_weights=None, direct_cancelled=True):
         """One frame's (or one pose group's) paths, with the pose the odometry reported.
 
         A pose equal to the previous one continues its group (repeated soundings). Returns the
         number of paths kept. Raises FusionError on a pose that is not three finite numbers.
-        csi: the group's CSI frames (F, M, N) for the CSI refinement (enable_csi_refinement),
-        sounded with tx_weights (default: the radar's).
+        csi: the frame's or group's CSI (M, N) or (F, M, N) for the CSI refinement
+        (enable_csi_refinement), sounded with tx_weights (default: the radar's), with the
+        direct path cancelled (else direct_cancelled=False); the frames of one group add up
+        (the latest MAX_CSI_FRAMES_PER_POSE).
         """
         pose = np.asarray(pose, dtype=float).reshape(-1)
         if pose.shape != (3,) or not np.all(np.isfinite(pose)):
             raise FusionError(f"pose: expected [x, y, heading] finite, got {pose.tolist()}")
+        if csi is not None and self.refiner is not None:  # checked before anything is kept
+            csi, tx_weights = self._checked_csi(csi, tx_weights, direct_cancelled)
         self.counts["messages"] += 1
         if frame_index is None:
             frame_index = (self.groups[-1].frame_index + 1) if self.groups else 0
@@ -555,7 +570,11 @@ class WallFusion:
             self.groups.append(group)
         group.frames += 1
         if csi is not None and self.refiner is not None:
-            self.refiner.add(len(self.groups) - 1, csi, tx_weights)
+            if group.csi and not np.array_equal(tx_weights, group.csi_weights):
+                group.csi = []  # a group is one sounding: the latest weights' frames stand for it
+            group.csi = (group.csi + list(csi))[-self.MAX_CSI_FRAMES_PER_POSE:]
+            group.csi_weights = tx_weights
+            self.refiner.add(len(self.groups) - 1, np.stack(group.csi), tx_weights)
         kept = 0
         for path in paths:
             self.counts["paths"] += 1
@@ -581,6 +600,25 @@ class WallFusion:
                 group.paths.append({"aoa_rad": aoa, "delay_s": delay, "power": power, "stage": stage, "count": 1})
             kept += 1
         return kept
+
+    def _checked_csi(self, csi, tx_weights, direct_cancelled):
+        """(frames (F, M, N) with the direct path cancelled, TX weights (num_tx,)), or
+        FusionError naming what is wrong."""
+        m, n = len(self.radar.rx_elements_m), len(self.radar.subcarrier_offsets_hz)
+        frames = np.asarray(csi, complex)
+        flat = frames.ndim == 1 and frames.size and frames.size % (m * n) == 0
+        if not (flat or (frames.ndim in (2, 3) and frames.shape[-2:] == (m, n))):
+            raise FusionError(f"csi: expected frames of {m} x {n} (elements x subcarriers) = {m * n} values, "
+                              f"got shape {frames.shape}")
+        frames = frames.reshape(-1, m, n)
+        if not np.all(np.isfinite(frames)):
+            raise FusionError("csi: NaN or Inf values")
+        weights = np.asarray(self.radar.tx_weights if tx_weights is None else tx_weights, complex).reshape(-1)
+        if weights.size != len(self.radar.tx_elements_m) or not np.all(np.isfinite(weights)):
+            raise FusionError(f"tx_weights: expected {len(self.radar.tx_elements_m)} finite weights, got {weights.size}")
+        if not direct_cancelled:
+            frames = self.refiner.without_direct_path(frames, weights)
+        return frames, weights
 
     @property
     def num_poses(self):
@@ -2018,6 +2056,10 @@ from gnuradio import gr  # noqa: E402
 _KEY_FRAME_INDEX = pmt.intern("frame_index")
 _KEY_POSE = pmt.intern("pose")
 _KEY_PATHS = pmt.intern("paths")
+_KEY_CSI = pmt.intern("csi")
+_KEY_SYSTEM_DELAY = pmt.intern("system_delay_s")
+_KEY_TX_WEIGHTS = pmt.intern("tx_weights")
+_KEY_DIRECT_CANCELLED = pmt.intern("direct_path_cancelled")
 _PORT_PATHS = pmt.intern("paths")
 _PORT_POSE = pmt.intern("pose")
 _PORT_MAP = pmt.intern("map")
@@ -2063,6 +2105,37 @@ def paths_from_pmt(msg):
             entry["stage"] = int(pmt.to_long(stage)) if pmt.is_integer(stage) else 0
         paths.append(entry)
     return frame_index, pose, paths
+
+
+def _pmt_complex_vector(value):
+    if pmt.is_c32vector(value):
+        return np.asarray(pmt.c32vector_elements(value), np.complex128)
+    if pmt.is_c64vector(value):
+        return np.asarray(pmt.c64vector_elements(value), np.complex128)
+    return None
+
+
+def csi_from_pmt(msg):
+    """The CSI jade_estimator attaches to its "paths" message (attach_csi): a dict {"csi"
+    (M*N complex, element-major), "system_delay_s", "tx_weights" (or None: the radar's),
+    "direct_path_cancelled"}, or None when the message carries no CSI. Raises FusionError on
+    a "csi" entry that is not a complex vector or comes without a finite "system_delay_s"."""
+    if not pmt.is_dict(msg) or not pmt.dict_has_key(msg, _KEY_CSI):
+        return None
+    csi = _pmt_complex_vector(pmt.dict_ref(msg, _KEY_CSI, pmt.PMT_NIL))
+    if csi is None:
+        raise FusionError("paths message: \"csi\" is not a complex vector (c32vector)")
+    delay = _pmt_number(pmt.dict_ref(msg, _KEY_SYSTEM_DELAY, pmt.PMT_NIL))
+    if not (math.isfinite(delay) and delay >= 0):
+        raise FusionError("paths message: \"csi\" without a finite \"system_delay_s\" >= 0")
+    weights = None
+    if pmt.dict_has_key(msg, _KEY_TX_WEIGHTS):
+        weights = _pmt_complex_vector(pmt.dict_ref(msg, _KEY_TX_WEIGHTS, pmt.PMT_NIL))
+        if weights is None:
+            raise FusionError("paths message: \"tx_weights\" is not a complex vector")
+    cancelled = pmt.dict_ref(msg, _KEY_DIRECT_CANCELLED, pmt.PMT_F)
+    return {"csi": csi, "system_delay_s": delay, "tx_weights": weights,
+            "direct_path_cancelled": pmt.is_bool(cancelled) and pmt.to_bool(cancelled)}
 
 
 def map_to_pmt(fused):
@@ -2122,8 +2195,12 @@ class wall_fusion(gr.basic_block):
     Message output:
       map    a dict (map_to_pmt) every update_interval new poses, and when the flowgraph stops
 
-    A frame takes the pose tagged on it, else the latest pose message whose frame_index is not
-    after its own. Frames whose pose is unknown wait for it; those still waiting at the end,
+    With refine_on_csi, frames whose message carries their CSI (jade_estimator's attach_csi:
+    "csi", "system_delay_s", "tx_weights", "direct_path_cancelled") have their wall echoes
+    fitted on it with the exact slab echo model, and JADE's spurious paths confirmed away, as
+    thrumapper-map does (docs/mapping.md); without the CSI the echoes take the slab model's
+    delay shift. A frame takes the pose tagged on it, else the latest pose message whose
+    frame_index is not after its own. Frames whose pose is unknown wait for it; those still waiting at the end,
     and malformed messages, poses out of order and echoes with NaN or earlier than the direct
     path are skipped and counted (skipped_counts()).
 
@@ -2133,7 +2210,8 @@ class wall_fusion(gr.basic_block):
     """
 
     def __init__(self, radar=None, material="plasterboard", update_interval=10, geojson_path="", png_path="",
-                 correct_poses=True, max_range_m=8.0, min_excess_delay_s=0.8e-9, write_every_update=False):
+                 correct_poses=True, max_range_m=8.0, min_excess_delay_s=0.8e-9, write_every_update=False,
+                 refine_on_csi=True):
         gr.basic_block.__init__(self, name="wall_fusion", in_sig=None, out_sig=None)
         if int(update_interval) < 1:
             raise FusionError(f"update_interval: expected at least 1 pose, got {update_interval}")
@@ -2147,13 +2225,25 @@ class wall_fusion(gr.basic_block):
         self._geojson_path = geojson_path or ""
         self._png_path = png_path or ""
         self._write_every_update = bool(write_every_update)
+        self._refine_on_csi = bool(refine_on_csi)
+        # Two locks: _lock for the message side (fast, taken by the message handlers), and
+        # _fusion_lock for the fusion, which only the worker thread (and stop()) feeds and
+        # builds, so that a map build of seconds never holds up the message handlers
         self._lock = threading.Lock()
+        self._fusion_lock = threading.Lock()
         self._poses = []  # (frame_index or None, pose), arrival (= frame) order
-        self._pending = []  # (frame_index, paths) waiting for their pose
+        self._pending = []  # (frame_index, paths, csi) waiting for their pose
+        self._inbox = []  # (frame_index, pose, paths, csi) placed, for the worker to add
+        self._wake = threading.Event()
+        self._stopping = False
+        self._worker = None
+        self._last_build_s = 0.0
+        self._last_build_end = 0.0
         self._last_map = None
         self._poses_at_last_map = 0
-        self._skipped = {"malformed": 0, "stale_pose": 0, "no_pose": 0}
+        self._skipped = {"malformed": 0, "stale_pose": 0, "no_pose": 0, "csi": 0}
         self._warnings = 0
+        self._warned_missing_csi = False
         self.message_port_register_in(_PORT_PATHS)
         self.set_msg_handler(_PORT_PATHS, self._on_paths)
         self.message_port_register_in(_PORT_POSE)
@@ -2193,12 +2283,12 @@ class wall_fusion(gr.basic_block):
             # frames that waited for a pose, now that this pose bounds theirs: its own frame
             # too (its paths can arrive first: the two ports' queues are not ordered together)
             waiting, self._pending = self._pending, []
-            for index, paths in waiting:
+            for index, paths, csi in waiting:
                 if index is None or frame_index is None or index <= frame_index:
-                    self._consume(index, None, paths)
+                    self._consume(index, None, paths, csi)
                 else:
-                    self._pending.append((index, paths))
-        self._maybe_update()
+                    self._pending.append((index, paths, csi))
+        self._wake.set()
 
     def _pose_for(self, frame_index):
         """The latest pose whose frame_index is not after frame_index (None when unknown)."""
@@ -2210,21 +2300,42 @@ class wall_fusion(gr.basic_block):
                 break
         return best
 
-    def _consume(self, frame_index, pose, paths):
+    def _consume(self, frame_index, pose, paths, csi=None):
+        """A frame placed (under _lock): into the inbox, for the worker."""
         if pose is None:
             pose = self._pose_for(frame_index)
         if pose is None:
             self._skipped["no_pose"] += 1
             return
+        self._inbox.append((frame_index, pose, paths, csi))
+
+    def _feed(self):
+        """The inbox into the fusion (under _fusion_lock)."""
+        with self._lock:
+            inbox, self._inbox = self._inbox, []
+        for frame_index, pose, paths, csi in inbox:
+            self._add(frame_index, pose, paths, csi)
+
+    def _add(self, frame_index, pose, paths, csi):
+        if csi is not None and self._fusion.refiner is None:
+            self._fusion.enable_csi_refinement(csi["system_delay_s"])
+        elif csi is not None and abs(csi["system_delay_s"] - self._fusion.refiner.system_delay_s) > 1e-12:
+            self._warn(f"wall_fusion: frame {frame_index}: system delay {csi['system_delay_s']:.4g} s, not the "
+                       f"{self._fusion.refiner.system_delay_s:.4g} s of the first frames; kept the first")
         try:
-            self._fusion.add(pose, paths, frame_index)
+            if csi is None:
+                self._fusion.add(pose, paths, frame_index)
+            else:
+                self._fusion.add(pose, paths, frame_index, csi["csi"], csi["tx_weights"], csi["direct_path_cancelled"])
         except FusionError as err:
-            self._skipped["malformed"] += 1
-            self._warn(f"wall_fusion: {err}")
+            with self._lock:
+                self._skipped["csi" if csi is not None and str(err).startswith(("csi", "tx_weights")) else "malformed"] += 1
+            self._warn(f"wall_fusion: frame {frame_index}: {err}; skipped")
 
     def _on_paths(self, msg):
         try:
             frame_index, pose, paths = paths_from_pmt(msg)
+            csi = csi_from_pmt(msg) if self._refine_on_csi else None
         except FusionError as err:
             with self._lock:
                 self._skipped["malformed"] += 1
@@ -2232,33 +2343,68 @@ class wall_fusion(gr.basic_block):
             return
         with self._lock:
             if pose is not None:
-                self._consume(frame_index, pose, paths)
+                self._consume(frame_index, pose, paths, csi)
             elif not self._poses:
-                self._pending.append((frame_index, paths))
+                self._pending.append((frame_index, paths, csi))
             else:
                 last_index = self._poses[-1][0]
                 if frame_index is not None and last_index is not None and frame_index > last_index:
                     # a pose message for a frame up to this one may still be on its way: the
                     # next pose message settles it (or the end of the stream)
-                    self._pending.append((frame_index, paths))
+                    self._pending.append((frame_index, paths, csi))
                 else:
-                    self._consume(frame_index, None, paths)
-        self._maybe_update()
+                    self._consume(frame_index, None, paths, csi)
+        self._wake.set()
 
     # -- the map ---------------------------------------------------------------------------
-    def _maybe_update(self):
-        with self._lock:
-            due = self._fusion.num_poses - self._poses_at_last_map >= self._update_interval
-        if due:
-            self.update_map()
+    def start(self):
+        self._stopping = False
+        self._worker = threading.Thread(target=self._run, name="wall_fusion", daemon=True)
+        self._worker.start()
+        return True
+
+    def _run(self):
+        """The worker: adds what the handlers placed, and builds a map every update_interval
+        new poses, at most half of the time (a build of N seconds waits N seconds after the
+        previous one): with the CSI fits a build takes seconds, and the builds must neither
+        pile up behind the survey nor starve the flowgraph's other Python blocks."""
+        while not self._stopping:
+            self._wake.wait(0.5)
+            self._wake.clear()
+            with self._fusion_lock:
+                self._feed()
+                due = self._fusion.num_poses - self._poses_at_last_map >= self._update_interval
+            if not due or self._stopping:
+                continue
+            rest = self._last_build_end + self._last_build_s - time.monotonic()
+            if rest > 0:
+                self._wake.set()  # come back when the rest is over
+                time.sleep(min(rest, 0.5))
+                continue
+            try:
+                self.update_map()
+            except Exception as err:  # the block lives on; the next update tries again
+                self.logger.error(f"wall_fusion: map update failed: {err!r}")
 
     def update_map(self):
-        """Build the map now, publish it on "map" and return it (a FusedMap)."""
-        with self._lock:
+        """Build the map now from every frame placed, publish it on "map" and return it (a
+        FusedMap)."""
+        started = time.monotonic()
+        with self._fusion_lock:
+            self._feed()
+            missing = self._fusion.groups_without_csi
+            if missing and not self._warned_missing_csi:
+                self._warned_missing_csi = True
+                self._warn(f"wall_fusion: {missing} of {self._fusion.num_poses} poses came without CSI: the map "
+                           "uses the slab correction instead of the CSI fits")
             fused = self._fusion.build_map()
-            fused.stats.update({f"skipped_{k}": v for k, v in self._skipped.items()})
-            self._last_map = fused
-            self._poses_at_last_map = self._fusion.num_poses
+            with self._lock:
+                fused.stats.update({f"skipped_{k}": v for k, v in self._skipped.items()})
+                fused.stats["poses_without_csi"] = missing
+                self._last_map = fused
+            self._poses_at_last_map = fused.stats["poses"]
+        self._last_build_end = time.monotonic()
+        self._last_build_s = self._last_build_end - started
         self.message_port_pub(_PORT_MAP, map_to_pmt(fused))
         if self._write_every_update:
             self.write_files()
@@ -2275,27 +2421,34 @@ class wall_fusion(gr.basic_block):
             plot_map(fused, self._png_path)
 
     def stop(self):
+        self._stopping = True
+        self._wake.set()
+        if self._worker is not None:
+            self._worker.join()  # a build under way finishes first
+            self._worker = None
         with self._lock:
             waiting, self._pending = self._pending, []
-            for index, paths in waiting:  # the end of the stream bounds every pose
-                self._consume(index, None, paths)
-            if not self._fusion.num_poses and not self._poses:
-                self._warn("wall_fusion: no pose arrived; the map is empty (connect survey_source's \"pose\" port)")
+            for index, paths, csi in waiting:  # the end of the stream bounds every pose
+                self._consume(index, None, paths, csi)
+            nothing_placed = not self._inbox and not self._poses
+        # (_lock is never held while _fusion_lock is taken: update_map takes them the other way)
+        if nothing_placed and not self._fusion.num_poses:
+            self._warn("wall_fusion: no pose arrived; the map is empty (connect survey_source's \"pose\" port)")
         self.update_map()
         self.write_files()
         return True
 
     # -- accessors -------------------------------------------------------------------------
     def num_poses(self):
-        with self._lock:
-            return self._fusion.num_poses
+        """Poses in the fusion (frames placed reach it within the worker's next round)."""
+        return self._fusion.num_poses
 
     def skipped_counts(self):
         """Messages and echoes skipped, by reason."""
         with self._lock:
             counts = dict(self._skipped)
-            counts.update({k: v for k, v in self._fusion.counts.items() if k.startswith("skipped")})
-            return counts
+        counts.update({k: v for k, v in dict(self._fusion.counts).items() if k.startswith("skipped")})
+        return counts
 
     def num_skipped(self):
         return int(sum(self.skipped_counts().values()))

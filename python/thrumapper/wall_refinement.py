@@ -74,7 +74,7 @@ class _Pose:
     def __init__(self, csi, model, direct):
         self.rows = csi.reshape(csi.shape[0], -1)
         self.model = model
-        self.direct = direct  # (M*N,) the direct path cancelled from the data, or None
+        self.direct = direct  # (M*N,) the direct path, cancelled from the data
 
 
 class CsiWallRefiner:
@@ -102,21 +102,36 @@ class CsiWallRefiner:
 
     def add(self, group_index, csi, tx_weights=None, direct_cancelled=True):
         """The CSI frames (F, M, N) of pose group group_index (WallFusion's order), as JADE saw
-        them: RX-calibrated and, with direct_cancelled, the direct path projected out."""
+        them: RX-calibrated and, with direct_cancelled, the direct path projected out (without,
+        it is projected out here: the fits model everything but the direct path)."""
         csi = np.asarray(csi, complex)
         if csi.ndim == 2:
             csi = csi[None]
         m, n = len(self.radar.rx_elements_m), self.freqs_hz.size
         if csi.ndim != 3 or csi.shape[1:] != (m, n):
             raise ValueError(f"csi: expected frames of shape ({m}, {n}), got {csi.shape}")
+        if not direct_cancelled:
+            csi = self.without_direct_path(csi, tx_weights)
+        model, direct = self._model_for(tx_weights)
+        self.poses[int(group_index)] = _Pose(csi, model, direct)
+
+    def without_direct_path(self, csi, tx_weights=None):
+        """csi (F, M, N) or (M, N) with the direct path for tx_weights projected out."""
+        csi = np.asarray(csi, complex)
+        direct = self._model_for(tx_weights)[1]
+        unit = direct / np.linalg.norm(direct)
+        rows = csi.reshape(-1, unit.size)
+        return (rows - np.outer(rows @ unit.conj(), unit)).reshape(csi.shape)
+
+    def _model_for(self, tx_weights):
+        """(EchoModel, direct path response) of the TX weights (default: the radar's)."""
         weights = np.asarray(self.radar.tx_weights if tx_weights is None else tx_weights, complex)
         key = weights.tobytes()
         if key not in self._models:
             model = EchoModel(self.radar.tx_elements_m, self.radar.rx_elements_m, weights, self.radar.carrier_hz,
                               self.radar.subcarrier_offsets_hz)
             self._models[key] = (model, self._direct_response(weights))
-        model, direct = self._models[key]
-        self.poses[int(group_index)] = _Pose(csi, model, direct if direct_cancelled else None)
+        return self._models[key]
 
     def _direct_response(self, weights):
         """The exact near-field direct TX->RX response (the core's direct_path_response, the
@@ -205,8 +220,7 @@ class CsiWallRefiner:
                        abs(delay - d) < s.explained_delay_s for a, d in explained)
             if not near:
                 cols.append(self._far_field(aoa, delay))
-        if data.direct is not None:
-            cols.append(data.direct)
+        cols.append(data.direct)
         return self._orthonormal(cols)
 
     def _fit(self, k, groups, pivot, step_m, step_deg, base=None, bases=None, crossed=None):
@@ -279,7 +293,7 @@ class CsiWallRefiner:
         Returns {k: (aoa_rad, delay_s) of the fitted echo, or None when not confirmed}."""
         data, pose = self.poses[g], self.world_poses[g]
         total = float(np.sum(np.abs(data.rows) ** 2))
-        fixed = [] if data.direct is None else [data.direct]
+        fixed = [data.direct]
         for j in confirmed:
             e = self._echo(data, self.walls[j], pose, self._crossed_for(j, set(confirmed)))
             if e is not None:
@@ -332,7 +346,7 @@ class CsiWallRefiner:
         pose, a list of bools for `points`)."""
         data, pose = self.poses[g], self.world_poses[g]
         total = float(np.sum(np.abs(data.rows) ** 2))
-        cols = [] if data.direct is None else [data.direct]
+        cols = [data.direct]
         echoes = {}
         for k in candidates:
             e = self._echo(data, self.walls[k], pose, self._crossed_for(k))

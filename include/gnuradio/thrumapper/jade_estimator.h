@@ -29,6 +29,11 @@ namespace thrumapper {
  * tagged), "model_order" (long) and "paths": a PMT vector of dicts {"angle_deg", "delay_s",
  * "power", "spectrum_db", "stage"}, strongest first. Angle: degrees in [0, 360) CCW from robot
  * +x at the RX centre; delay: TX centre to RX centre, system delay removed (FORMATS.md).
+ * With attach_csi the dict also carries the frame as JADE saw it, for wall_fusion's CSI fits:
+ * "csi" (c32vector, M·N, element-major), "system_delay_s" (double), "tx_weights" (the frame's
+ * "tx_weights" tag, else its "direct_path_weights" tag, when tagged) and
+ * "direct_path_cancelled" (bool: a projection_canceller upstream tagged the frame with the
+ * "direct_path_weights" it cancelled).
  *
  * A frame with NaN/Inf values, the wrong size or no signal is skipped: logged, counted
  * (num_skipped()), and gives no output item. All setters are thread safe and take effect at
@@ -51,6 +56,7 @@ public:
      * \param system_delay_s τ_sys, removed from every delay.
      * \param stages successive-cancellation stages (1: estimate once); each path's "stage"
      *        says which stage found it.
+     * \param attach_csi attach each frame's CSI to its "paths" message (above).
      */
     static sptr make(radar_description::sptr radar,
                      int num_angles = 360,
@@ -62,7 +68,8 @@ public:
                      int max_paths = 4,
                      int smoothing_window = 0,
                      double system_delay_s = 0.0,
-                     int stages = 1);
+                     int stages = 1,
+                     bool attach_csi = false);
 
     virtual void set_angle_span(double angle_min_deg, double angle_max_deg) = 0;
     virtual void set_delay_span(double delay_min_s, double delay_max_s) = 0;
@@ -72,6 +79,8 @@ public:
     //! 0: automatic model order from the eigenvalues; otherwise fixed.
     virtual void set_model_order(int order) = 0;
     virtual void set_stages(int stages) = 0;
+    virtual void set_attach_csi(bool attach_csi) = 0;
+    virtual bool attach_csi() const = 0;
 
     virtual int num_angles() const = 0;
     virtual int num_delays() const = 0;

@@ -27,7 +27,10 @@ namespace thrumapper {
  * "delay_s"} — jade_estimator's "paths" message works as it is — replaces the paths to
  * cancel; {"clear": #t} clears them. Message port "weights" (in): null_steering_weights'
  * message (a dict with "weights"), or a bare c32vector, sets the TX weights of the direct path;
- * a "tx_weights" tag (c32/c64vector) on a frame sets them for that frame only.
+ * a "tx_weights" tag (c32/c64vector) on a frame sets them for that frame only. While the
+ * direct path is cancelled, every frame out carries a "direct_path_weights" tag (c32vector):
+ * the TX weights of the direct path cancelled from it (jade_estimator passes it on to
+ * wall_fusion, whose CSI fits need the frames' TX weights).
  * A malformed message is logged and counted (num_bad_messages()); changes take effect at the
  * next frame. Frames with NaN/Inf are logged, counted (num_skipped()) and dropped.
  */

@@ -5,7 +5,7 @@
 /* BINDTOOL_GEN_AUTOMATIC(0) */
 /* BINDTOOL_USE_PYGCCXML(0) */
 /* BINDTOOL_HEADER_FILE(jade_estimator.h) */
-/* BINDTOOL_HEADER_FILE_HASH(4e4dc6e1e325512837fb8e9de4b3d9a8) */
+/* BINDTOOL_HEADER_FILE_HASH(bab7433d01bdf096c64ed1fa4ca28783) */
 
 #include <pybind11/complex.h>
 #include <pybind11/pybind11.h>
@@ -28,7 +28,9 @@ Joint angle-delay estimation (JADE) on every CSI frame.
 In: one vector item per frame, M*N gr_complex, element-major (entry m*N + n).
 Out: the MUSIC pseudo-spectrum, dB, num_angles*num_delays floats, angle-major.
 Message port "paths": a dict per frame with frame_index, rx_time and pose when tagged,
-model_order and paths (a vector of dicts angle_deg, delay_s, power, spectrum_db, stage).
+model_order and paths (a vector of dicts angle_deg, delay_s, power, spectrum_db, stage);
+with attach_csi also csi (the frame, c32vector), system_delay_s, tx_weights (when tagged) and
+direct_path_cancelled, for wall_fusion's CSI fits.
 Bad frames (NaN/Inf, all zeros) are logged, counted (num_skipped) and give no output.
 )doc")
         .def(py::init(&jade_estimator::make),
@@ -42,7 +44,8 @@ Bad frames (NaN/Inf, all zeros) are logged, counted (num_skipped) and give no ou
              py::arg("max_paths") = 4,
              py::arg("smoothing_window") = 0,
              py::arg("system_delay_s") = 0.0,
-             py::arg("stages") = 1)
+             py::arg("stages") = 1,
+             py::arg("attach_csi") = false)
         .def("set_angle_span", &jade_estimator::set_angle_span, py::arg("angle_min_deg"), py::arg("angle_max_deg"))
         .def("set_delay_span", &jade_estimator::set_delay_span, py::arg("delay_min_s"), py::arg("delay_max_s"))
         .def("set_max_paths", &jade_estimator::set_max_paths, py::arg("max_paths"))
@@ -51,6 +54,8 @@ Bad frames (NaN/Inf, all zeros) are logged, counted (num_skipped) and give no ou
         .def("set_model_order", &jade_estimator::set_model_order, py::arg("order"))
         .def("set_stages", &jade_estimator::set_stages, py::arg("stages"))
         .def("stages", &jade_estimator::stages)
+        .def("set_attach_csi", &jade_estimator::set_attach_csi, py::arg("attach_csi"))
+        .def("attach_csi", &jade_estimator::attach_csi)
         .def("num_angles", &jade_estimator::num_angles)
         .def("num_delays", &jade_estimator::num_delays)
         .def("max_paths", &jade_estimator::max_paths)
