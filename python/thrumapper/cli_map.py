@@ -56,6 +56,11 @@ def build_parser():
     p.add_argument("--material", default=None, metavar="NAME",
                    help="wall material for the slab correction when the survey has no thrumapper:wall_model: "
                         "plasterboard (default), stud_wall, brick, concrete, glass, wood, metal, or none")
+    p.add_argument("--no-material-labels", action="store_true",
+                   help="do not label the walls' materials; by default, with the CSI fits and a survey without "
+                        "thrumapper:wall_model, each wall seen from 3 poses or more is labelled plasterboard, brick "
+                        "or concrete by how strong its echoes are against the line-of-sight walls' (GeoJSON "
+                        "property \"material\"; docs/mapping.md, \"Materials\")")
     p.add_argument("--paths", type=int, default=8, metavar="K", help="most echoes JADE reports per pose (default 8)")
     p.add_argument("--stages", type=int, default=1, metavar="N",
                    help="successive-cancellation stages of JADE (default 1: on the example scenes more stages "
@@ -109,6 +114,7 @@ def map_survey(survey, fusion_settings=None, settings=None, system_delay_s=None,
     fusion_settings = fusion_settings or FusionSettings()
     if survey.wall_model is not None:
         fusion_settings.material = dict(survey.wall_model)
+        fusion_settings.estimate_materials = False  # the survey states it
         info["wall_model"] = "survey thrumapper:wall_model"
     fusion = WallFusion(RadarGeometry.from_survey(survey), fusion_settings)
     settings = settings or jade_settings()
@@ -159,7 +165,8 @@ def main(argv=None):
         material = None
     try:
         fusion_settings = FusionSettings(material=material, correct_poses=not args.no_pose_correction,
-                                         max_range_m=args.max_range_m, min_wall_poses=args.min_wall_poses)
+                                         max_range_m=args.max_range_m, min_wall_poses=args.min_wall_poses,
+                                         estimate_materials=not args.no_material_labels)
         fusion_settings.check()
         settings = jade_settings(args.paths, args.stages, args.max_delay_s, args.angles, args.delays)
     except ValueError as err:

@@ -233,6 +233,43 @@ class qa_wall_refinement(gr_unittest.TestCase):
         self.assertFalse([w for w in fused.walls if w.start_m[1] > 0 or w.end_m[1] > 0], fused.walls)
         self.assertGreater(fused.stats["unconfirmed_echoes"], 0, fused.stats)
 
+    def test_wall_materials_told_by_echo_strength(self):
+        """A corridor wall of plasterboard 0.7 m to the robot's right, and 1.5 m behind it a
+        wall of brick (20 cm, εr 3.91) for x = -1 .. 4.5 and of plasterboard for x = 5.5 .. 11;
+        the survey states no wall material. At normal incidence brick's |Γ| is about 0.4 and
+        plasterboard's 0.13-0.19, so the brick wall's echo, through the same corridor wall, is
+        about 2.5 times what the plasterboard model predicts, and the plasterboard piece's is
+        not: the brick piece is labelled a dense material (brick, or concrete, which its
+        strength alone does not tell from brick), the plasterboard piece and the corridor wall
+        plasterboard. With --no-material-labels (estimate_materials off) no wall is labelled."""
+        data = scene_data("paper_4_4_corridor_corner")
+        data["walls"] = [{"name": "corridor", "segment": [[-1.0, -0.775], [11.0, -0.775]], "material": "plasterboard"},
+                         {"name": "brick", "segment": [[-1.0, -2.425], [4.5, -2.425]], "material": "brick"},
+                         {"name": "plaster", "segment": [[5.5, -2.4], [11.0, -2.4]], "material": "plasterboard"}]
+        data.pop("clutter", None)
+        data["trajectory"] = {"waypoints": [[0.0, 0.0], [10.0, 0.0]], "step_m": 0.4}
+        data["frames_per_pose"] = 2
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+        self.assertIsNone(res.wall_model)  # two materials: the survey does not state one
+        with tempfile.TemporaryDirectory() as tmp:
+            read = written_survey(tmp, sc, res, res.poses_true)
+            fused, _ = cli_map.map_survey(read, fusion_settings=wf_settings(correct_poses=False))
+            unlabelled, _ = cli_map.map_survey(read, fusion_settings=wf_settings(correct_poses=False,
+                                                                                 estimate_materials=False))
+
+        def along(face_y, x0, x1):
+            return [w for w in fused.walls if abs(w.start_m[1] - face_y) < 0.3 and abs(w.end_m[1] - face_y) < 0.3
+                    and min(w.start_m[0], w.end_m[0]) < x1 and max(w.start_m[0], w.end_m[0]) > x0]
+        corridor, brick, plaster = along(-0.7, -1.0, 11.0), along(-2.325, 0.0, 4.0), along(-2.325, 6.0, 10.0)
+        self.assertTrue(corridor and brick and plaster, fused.walls)
+        self.assertEqual({w.material for w in corridor}, {"plasterboard"}, corridor)
+        self.assertEqual({w.cls for w in brick + plaster}, {"hidden"}, brick + plaster)
+        self.assertTrue({w.material for w in brick} <= {"brick", "concrete"}, brick)
+        self.assertEqual({w.material for w in plaster}, {"plasterboard"}, plaster)
+        self.assertEqual([w for w in unlabelled.walls if w.material], [])
+        self.assertEqual(unlabelled.stats["walls_by_material"], {})
+
     def test_corridor_map_targets(self):
         """§4.4: the corridor scan past a room mapped through thrumapper-map's chain: the issue's
         targets, line-of-sight RMS <= 5 cm and hidden <= 12 cm (the paper: 14 and 25-57 cm);

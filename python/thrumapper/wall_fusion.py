@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import bistatic
+from . import bistatic, scene
 from .echo_model import EchoModel, material_from
 
 C = bistatic.SPEED_OF_LIGHT_M_S
@@ -99,6 +99,10 @@ class FusionSettings:
     #: the walls' material for the slab correction: a preset name, a wall_model dict, or None
     #: for no slab correction
     material: object = "plasterboard"
+    #: with the CSI, label each wall plasterboard, brick or concrete by how strong its echoes
+    #: are against the line-of-sight walls' (WallFusion._estimate_materials); off when the
+    #: survey states its walls' material (thrumapper:wall_model)
+    estimate_materials: bool = True
     #: correct the poses (scan-to-map, then a global least-squares adjustment)
     correct_poses: bool = True
     #: odometry error model for the pose correction (1-sigma per step)
@@ -218,6 +222,9 @@ class MapWall:
     corners: list = field(default_factory=list)
     #: a gap between two pieces of one line-of-sight wall, drawn without echoes of its own
     inferred: bool = False
+    #: the material its echoes' strength tells (WallFusion._estimate_materials), or None when
+    #: not estimated (no CSI, too few poses, or the survey states the material)
+    material: str = None
 
     @property
     def length_m(self):
@@ -254,7 +261,8 @@ class FusedMap:
             features.append(_feature("LineString", [_xy(w.start_m), _xy(w.end_m)], {
                 "kind": "wall", "class": w.cls, "confidence": round(float(w.confidence), 4),
                 "num_poses": int(w.num_poses), "num_echoes": int(w.num_echoes), "fit_rms_m": round(float(w.rms_m), 4),
-                "normal": _xy(w.normal), "id": i, "inferred": bool(w.inferred)}))
+                "normal": _xy(w.normal), "id": i, "inferred": bool(w.inferred),
+                **({"material": w.material} if w.material else {})}))
         points = self.detections if fused_detections else self.echoes
         for cls in CLASSES:
             if cls in points and len(points[cls]):
@@ -500,6 +508,7 @@ class WallFusion:
         #: a wall_refinement.CsiWallRefiner when the CSI is given (enable_csi_refinement)
         self.refiner = None
         self._weak_blockers = None  # per echo, set by build_map
+        self._wall_material_names = {}  # wall index: material (_estimate_materials), set by build_map
         self._tx_gains_db = {}  # _tx_gain_db's, by direction
         self.counts = {"messages": 0, "paths": 0, "skipped_nonfinite": 0, "skipped_early": 0, "skipped_far": 0,
                        "skipped_weak": 0}
@@ -1032,6 +1041,11 @@ class WallFusion:
 
     #: walls confirmed on the CSI pose by pose (CsiWallRefiner.confirm_walls)
     CONFIRM_WALLS = True
+    #: the materials a wall's echo strength chooses among (_estimate_materials): what
+    #: corridors are built of, and what the exterior and structural walls behind them are
+    MATERIAL_CANDIDATES = ("plasterboard", "brick", "concrete")
+    #: a wall's material is told from at least this many poses' echoes
+    MATERIAL_MIN_POSES = 3
 
     def _confirm_walls(self, det, state, poses):
         """The map's walls confirmed on each pose's CSI where they lie, strongest first, and
@@ -1092,6 +1106,67 @@ class WallFusion:
                     d_aoa[members] = _wrap(det["aoa"][members] - fit[0])
                     d_delay[members] = det["delay"][members] - fit[1]
         return unconfirmed, (d_aoa, d_delay)
+
+    def _estimate_materials(self, state, poses, wall_cls):
+        """Each wall's material from how strong its echoes are (docs/mapping.md, "Materials"):
+        {wall index: preset name} for the walls seen from at least MATERIAL_MIN_POSES poses.
+
+        The CSI fits leave a free complex gain per frame: the radar's absolute gain times the
+        wall's reflection over the model's. The radar's gain is the same for every wall, so a
+        wall's echo gain over the line-of-sight walls' (over the gain of the line-of-sight
+        walls its legs cross at the same pose, for a hidden wall: the same TX beam, and their
+        transmission in both) is its reflection over the model's, which tells plasterboard
+        (|Γ| 0.13-0.19 at normal incidence across the band) from brick or concrete (about
+        0.4). Per wall, the median of that log ratio over its poses is compared with what
+        each candidate material would give (CsiWallRefiner.echo_strength), and the nearest
+        is taken. The line-of-sight reference is the median over all their echoes: the
+        survey's material must be most of the line-of-sight walls' (a corridor)."""
+        self._refiner_map(state, poses, wall_cls)
+        survey = getattr(self.material, "name", "survey")
+        candidates = {survey: self.material}
+        candidates.update({n: scene.MATERIAL_PRESETS[n] for n in self.MATERIAL_CANDIDATES if n != survey})
+        group = state["group"]
+        strengths = {}
+        for k, w in enumerate(state["walls"]):
+            for g in np.unique(group[w["members"]]):
+                if int(g) in self.refiner.poses:
+                    st = self.refiner.echo_strength(int(g), k, candidates)
+                    if st is not None and st["gain"] > 0:
+                        strengths[(int(g), k)] = st
+        los = {gk: st["gain"] for gk, st in strengths.items() if wall_cls[gk[1]] == LOS}
+        if len(los) < self.MATERIAL_MIN_POSES:
+            return {}
+        walls = state["walls"]
+        cos_facing = math.cos(math.radians(30.0))
+
+        def facing(j, k):  # on the same side of the corridor: lit by the same part of the TX beam
+            return float(walls[j]["normal"] @ walls[k]["normal"]) > cos_facing
+
+        levels = {}
+        for (g, k), st in strengths.items():
+            # the line-of-sight reference, nearest first: the walls its legs cross at this pose,
+            # the others facing the same way at this pose, at any pose, any other line-of-sight
+            # wall (the TX beam is 10-20 dB weaker on the side of its null, and the model's gain
+            # there less sure: the office's two corridor walls differ by 0.7x)
+            for refs in ([los[(g, j)] for j in st["crossed"] if (g, j) in los],
+                         [v for (h, j), v in los.items() if h == g and j != k and facing(j, k)],
+                         [v for (h, j), v in los.items() if j != k and facing(j, k)],
+                         [v for (h, j), v in los.items() if j != k]):
+                if refs:
+                    break
+            else:  # the only line-of-sight wall: the reference itself, of the survey's material
+                levels.setdefault(k, []).append((0.0, st["predicted"]))
+                continue
+            levels.setdefault(k, []).append((math.log(st["gain"] / float(np.median(refs))), st["predicted"]))
+        names = {}
+        for k, items in levels.items():
+            if len(items) < self.MATERIAL_MIN_POSES:
+                continue
+            level = float(np.median([x for x, _ in items]))
+            miss = {n: abs(level - float(np.median([math.log(max(p[n], 1e-12)) for _, p in items])))
+                    for n in candidates}
+            names[k] = min(miss, key=miss.get)
+        return names
 
     def _refiner_map(self, state, poses, wall_cls=None):
         """Hand the CSI refiner this map: its walls, the poses, JADE's paths per group, and
@@ -1518,6 +1593,10 @@ class WallFusion:
             corrected = True
         det_cls, wall_cls = self._classify(state)
         end_walls = self._timed("end walls", self._end_walls, state, poses, wall_cls) if self._fits_on_csi else []
+        self._wall_material_names = {}
+        if self._fits_on_csi and self.settings.estimate_materials and self.material is not None \
+                and not self.material.conductor:
+            self._wall_material_names = self._timed("materials", self._estimate_materials, state, poses, wall_cls)
         result = self._timed("output", self._assemble, det, poses, odometry, state, det_cls, wall_cls, ghosts,
                              frame_indices, stats, end_walls)
         result.stats["poses_corrected"] = corrected
@@ -1921,7 +2000,8 @@ class WallFusion:
                 confidence *= 0.9  # a return through a wall carries that wall's uncertainty too
             start = w["centre"] + ends[k][0] * w["direction"]
             end = w["centre"] + ends[k][1] * w["direction"]
-            walls.append(MapWall(start, end, w["normal"].copy(), cls, float(confidence), n_poses, int(members.size), rms))
+            walls.append(MapWall(start, end, w["normal"].copy(), cls, float(confidence), n_poses, int(members.size), rms,
+                                 material=self._wall_material_names.get(k)))
             for i in members:
                 echoes[cls].append(pw[i])
                 detections[cls].append(self._fused_point(w, poses[group[i]], pw[i]))
@@ -1939,7 +2019,9 @@ class WallFusion:
                       "wall_echoes": int(np.count_nonzero(labels >= 0)),
                       "corner_echoes": int(np.count_nonzero(labels == CORNER)),
                       "unassigned_echoes": int(np.count_nonzero((labels == UNASSIGNED) & ~ghosts)),
-                      "end_walls": len(end_walls), "inferred_walls": sum(1 for w in walls if w.inferred)})
+                      "end_walls": len(end_walls), "inferred_walls": sum(1 for w in walls if w.inferred),
+                      "walls_by_material": {m: sum(1 for w in walls if w.material == m)
+                                            for m in sorted({w.material for w in walls if w.material})}})
         return FusedMap(walls, corners, scatterers, detections, echoes, poses, odometry, frame_indices, stats)
 
     def _gap_bridges(self, walls, los, fitted, poses, clearance_m=0.3):
@@ -2021,6 +2103,9 @@ def plot_map(fused, png_path, title=None, truth=None, dpi=120):
         labelled.add(w.cls)
         ax.plot(xy[:, 0], xy[:, 1], ":" if w.inferred else "-", color=colours[w.cls], lw=1.0 + 2.5 * w.confidence,
                 label=label)
+        if w.material and w.material != fused.stats.get("material"):  # the walls not like the rest
+            mid = xy.mean(axis=0) + 0.15 * w.normal
+            ax.annotate(w.material, mid, fontsize=7, color=colours[w.cls], ha="center", va="center")
     for cls in CLASSES:
         if cls in fused.detections and len(fused.detections[cls]):
             d = fused.detections[cls]
@@ -2140,7 +2225,7 @@ def csi_from_pmt(msg):
 
 def map_to_pmt(fused):
     """The map as a PMT dict: num_poses, walls (vector of dicts: class, confidence, start,
-    end, num_poses), corners (vector of dicts: position, confidence, class), detections (dict
+    end, num_poses, and material when estimated), corners (vector of dicts: position, confidence, class), detections (dict
     class -> f64vector x0, y0, x1, y1, ...), trajectory (f64vector x, y, heading per pose),
     stats (dict of numbers)."""
     def f64(values):
@@ -2155,6 +2240,8 @@ def map_to_pmt(fused):
         d = pmt.dict_add(d, pmt.intern("start"), f64(w.start_m))
         d = pmt.dict_add(d, pmt.intern("end"), f64(w.end_m))
         d = pmt.dict_add(d, pmt.intern("num_poses"), pmt.from_long(int(w.num_poses)))
+        if w.material:
+            d = pmt.dict_add(d, pmt.intern("material"), pmt.intern(w.material))
         pmt.vector_set(walls, i, d)
     corners = pmt.make_vector(len(fused.corners), pmt.PMT_NIL)
     for i, c in enumerate(fused.corners):

@@ -145,8 +145,10 @@ class CsiWallRefiner:
         space = np.exp(2j * np.pi * np.outer(self._rx_rel @ u, self.freqs_hz) / C)  # (M, N)
         return (space * np.exp(-2j * np.pi * self.freqs_hz * delay_s) * self._sys).ravel()
 
-    def _echo(self, data, wall, pose, crossed):
-        """The wall's predicted echo at a pose, (M*N,), or None when the pose does not see it."""
+    def _echo(self, data, wall, pose, crossed, material=None):
+        """The wall's predicted echo at a pose, (M*N,), or None when the pose does not see it;
+        of the survey's material, or of `material` when given (the walls its legs cross stay
+        of the survey's)."""
         point_r = bistatic.world_to_robot(wall["centre"], pose)
         normal_r = bistatic.rotate(wall["normal"], -pose[2])
         try:
@@ -163,7 +165,8 @@ class CsiWallRefiner:
             return None
         crossed_r = tuple((bistatic.world_to_robot(c["centre"], pose), bistatic.rotate(c["normal"], -pose[2]),
                            self.material) for c in crossed(spec, pose))
-        v = (data.model.echo_csi(point_r, normal_r, self.material, crossed_r) * self._sys).ravel()
+        material = self.material if material is None else material
+        v = (data.model.echo_csi(point_r, normal_r, material, crossed_r) * self._sys).ravel()
         return v, aoa, delay
 
     @staticmethod
@@ -272,6 +275,40 @@ class CsiWallRefiner:
         _, _, fitted = self._fit(k, [g], self._pivot(self.walls[k], pose), 0.04, 1.0)
         e = self._echo(self.poses[g], fitted, pose, self._crossed_for(k))
         return None if e is None else (e[1], e[2])
+
+    def echo_strength(self, g, k, materials):
+        """How strong wall k's echo is at group g against its model, the telltale of its
+        material (docs/mapping.md, "Materials"), or None when the pose does not see it.
+
+        The fits' free complex gain per frame absorbs the radar's absolute gain, so a wall's
+        reflection coefficient cannot be read from one echo; but that gain is the same for
+        every wall of the survey, and a brick or concrete wall answers about 2.5 times
+        stronger than the plasterboard model of it. Returns a dict: "gain", the RMS over the
+        frames of the least-squares gain of the wall's modelled echo (everything else modelled
+        at the pose projected out); "predicted", per name of `materials` (name: scene.Material)
+        the gain the same measurement would give if the wall were of that material and the
+        radar's gain were 1; "crossed", the indices of the line-of-sight walls its legs cross
+        (a hidden wall's echo is best compared with theirs at the same pose: the same TX beam,
+        and their transmission is in both)."""
+        data, pose, wall = self.poses[g], self.world_poses[g], self.walls[k]
+        crossed = self._crossed_for(k)
+        e = self._echo(data, wall, pose, crossed)
+        if e is None:
+            return None
+        basis = self._basis(g, k)
+        v = self._project_out(e[0], basis)
+        energy = float(np.vdot(v, v).real)
+        if not energy > 0:
+            return None
+        gains = data.rows @ v.conj() / energy
+        predicted = {}
+        for name, material in materials.items():
+            m = self._echo(data, wall, pose, crossed, material)[0]
+            predicted[name] = abs(np.vdot(v, self._project_out(m, basis))) / energy
+        spec = self._pivot(wall, pose)
+        crossing = crossed(spec, pose)
+        indices = [j for j, w in enumerate(self.walls) if any(w is c for c in crossing)]
+        return {"gain": float(np.sqrt(np.mean(np.abs(gains) ** 2))), "predicted": predicted, "crossed": indices}
 
     def confirm_echoes(self, g, candidates, confirmed=()):
         """Which of the walls `candidates` group g's CSI holds an echo of, and where.
