@@ -162,15 +162,16 @@ class qa_interference_blocks(gr_unittest.TestCase):
             canc = thrumapper.projection_canceller(radar, cancel_direct=cancel_direct, system_delay_s=tsys)
             canc.set_tx_weights(list(w1))
             jade = thrumapper.jade_estimator(radar, 90, 0.0, 360.0, 41, 0.0, 40e-9, 2, 0, tsys, 1, True)
-            tags = blocks.tag_debug(gr.sizeof_gr_complex * 8 * 64, "", "direct_path_weights")
-            tags.set_display(False)
+            # a vector sink keeps every tag (tag_debug's current_tags() holds the last work call's)
+            tags = blocks.vector_sink_c(8 * 64)
             msgs = blocks.message_debug()
             tb.connect(src, canc, jade, blocks.null_sink(gr.sizeof_float * 90 * 41))
             tb.connect(canc, tags)
             tb.msg_connect(jade, "paths", msgs, "store")
             tb.run()
             self.assertTrue(wait_for(lambda: msgs.num_messages() == 3))
-            return tags.current_tags(), [msgs.get_message(i) for i in range(3)]
+            weights_tags = [t for t in tags.tags() if pmt.symbol_to_string(t.key) == "direct_path_weights"]
+            return weights_tags, [msgs.get_message(i) for i in range(3)]
 
         tagged, messages = run(True)
         self.assertEqual([t.offset for t in tagged], [0, 1, 2])

@@ -386,12 +386,16 @@ class qa_wall_fusion(gr_unittest.TestCase):
 
     def test_block_messages_in_map_out(self):
         """Pose and paths messages as survey_source and jade_estimator send them (two frames
-        per pose); the map messages hold the corridor's walls."""
+        per pose), in two bursts; the map messages hold the corridor's walls. (The worker
+        builds one map from all that is placed when it runs: a burst of 16 poses posted at
+        once can become one map, so the second burst waits for the first map.)"""
         walls = [([-2.0, -1.0], [12.0, -1.0]), ([-2.0, 1.3], [12.0, 1.3])]
         poses = straight_poses(0.0, 3.0)
 
         def post(block):
             for i, pose in enumerate(poses):
+                if i == len(poses) // 2:
+                    self.assertTrue(wait_for(lambda: block.last_map() is not None, 60.0), "no first map")
                 block._post(pmt.intern("pose"), pose_message(2 * i, pose))
                 for k in range(2):
                     block._post(pmt.intern("paths"), self.paths_message(2 * i + k, wall_echoes(pose, walls)))

@@ -57,6 +57,10 @@ class FusionError(ValueError):
     """Input the fusion cannot use (bad settings, a malformed path or pose); the message names it."""
 
 
+class CsiError(FusionError):
+    """A frame's CSI or TX weights the CSI fits cannot use (wrong size, NaN); the message names it."""
+
+
 # ----------------------------------------------------------------------------------------
 # Settings, inputs, outputs
 # ----------------------------------------------------------------------------------------
@@ -615,19 +619,19 @@ class WallFusion:
 
     def _checked_csi(self, csi, tx_weights, direct_cancelled):
         """(frames (F, M, N) with the direct path cancelled, TX weights (num_tx,)), or
-        FusionError naming what is wrong."""
+        CsiError naming what is wrong."""
         m, n = len(self.radar.rx_elements_m), len(self.radar.subcarrier_offsets_hz)
         frames = np.asarray(csi, complex)
         flat = frames.ndim == 1 and frames.size and frames.size % (m * n) == 0
         if not (flat or (frames.ndim in (2, 3) and frames.shape[-2:] == (m, n))):
-            raise FusionError(f"csi: expected frames of {m} x {n} (elements x subcarriers) = {m * n} values, "
+            raise CsiError(f"csi: expected frames of {m} x {n} (elements x subcarriers) = {m * n} values, "
                               f"got shape {frames.shape}")
         frames = frames.reshape(-1, m, n)
         if not np.all(np.isfinite(frames)):
-            raise FusionError("csi: NaN or Inf values")
+            raise CsiError("csi: NaN or Inf values")
         weights = np.asarray(self.radar.tx_weights if tx_weights is None else tx_weights, complex).reshape(-1)
         if weights.size != len(self.radar.tx_elements_m) or not np.all(np.isfinite(weights)):
-            raise FusionError(f"tx_weights: expected {len(self.radar.tx_elements_m)} finite weights, got {weights.size}")
+            raise CsiError(f"tx_weights: expected {len(self.radar.tx_elements_m)} finite weights, got {weights.size}")
         if not direct_cancelled:
             frames = self.refiner.without_direct_path(frames, weights)
         return frames, weights
@@ -1122,8 +1126,8 @@ class WallFusion:
         (|Γ| 0.13-0.19 at normal incidence across the band) from brick or concrete (about
         0.4). Per wall, the median of that log ratio over its poses is compared with what
         each candidate material would give (CsiWallRefiner.echo_strength), and the nearest
-        is taken. The line-of-sight reference is the median over all their echoes: the
-        survey's material must be most of the line-of-sight walls' (a corridor)."""
+        is taken. The line-of-sight walls are the reference (nearest first, in the loop
+        below), so the survey's material must be most of theirs (a corridor)."""
         self._refiner_map(state, poses, wall_cls)
         survey = getattr(self.material, "name", "survey")
         candidates = {survey: self.material}
@@ -2233,9 +2237,9 @@ def csi_from_pmt(msg):
 
 def map_to_pmt(fused):
     """The map as a PMT dict: num_poses, walls (vector of dicts: class, confidence, start,
-    end, num_poses, and material when estimated), corners (vector of dicts: position, confidence, class), detections (dict
-    class -> f64vector x0, y0, x1, y1, ...), trajectory (f64vector x, y, heading per pose),
-    stats (dict of numbers)."""
+    end, num_poses, and material when estimated), corners (vector of dicts: position,
+    confidence, class), detections (dict class -> f64vector x0, y0, x1, y1, ...), trajectory
+    (f64vector x, y, heading per pose), stats (dict of numbers)."""
     def f64(values):
         values = [float(v) for v in np.asarray(values, float).reshape(-1)]
         return pmt.init_f64vector(len(values), values)
@@ -2424,7 +2428,7 @@ class wall_fusion(gr.basic_block):
                 self._fusion.add(pose, paths, frame_index, csi["csi"], csi["tx_weights"], csi["direct_path_cancelled"])
         except FusionError as err:
             with self._lock:
-                self._skipped["csi" if csi is not None and str(err).startswith(("csi", "tx_weights")) else "malformed"] += 1
+                self._skipped["csi" if isinstance(err, CsiError) else "malformed"] += 1
             self._warn(f"wall_fusion: frame {frame_index}: {err}; skipped")
 
     def _on_paths(self, msg):

@@ -100,18 +100,16 @@ class CsiWallRefiner:
         self.tx_c = np.asarray(radar.tx_elements_m, float).mean(axis=0)
         self.rx_c = rx.mean(axis=0)
 
-    def add(self, group_index, csi, tx_weights=None, direct_cancelled=True):
+    def add(self, group_index, csi, tx_weights=None):
         """The CSI frames (F, M, N) of pose group group_index (WallFusion's order), as JADE saw
-        them: RX-calibrated and, with direct_cancelled, the direct path projected out (without,
-        it is projected out here: the fits model everything but the direct path)."""
+        them: RX-calibrated, the direct path projected out (without_direct_path, where the
+        estimator did not: the fits model everything but the direct path)."""
         csi = np.asarray(csi, complex)
         if csi.ndim == 2:
             csi = csi[None]
         m, n = len(self.radar.rx_elements_m), self.freqs_hz.size
         if csi.ndim != 3 or csi.shape[1:] != (m, n):
             raise ValueError(f"csi: expected frames of shape ({m}, {n}), got {csi.shape}")
-        if not direct_cancelled:
-            csi = self.without_direct_path(csi, tx_weights)
         model, direct = self._model_for(tx_weights)
         self.poses[int(group_index)] = _Pose(csi, model, direct)
 
