@@ -21,9 +21,13 @@ the chain (docs/mapping.md):
      correction; each echo of a mapped wall replaced by that wall fitted on its pose's CSI with
      the exact slab echo model of the wall material (the survey's thrumapper:wall_model, else
      --material; --no-csi-refinement: JADE's echoes with the slab model's shift instead, as the
-     GNU Radio block wall_fusion, which gets no CSI, does); a wall across the corridor
-     behind the start, ranged on every pose's CSI, holds the distance travelled (the
-     odometry's scale) where there is one (stats: axial_landmarks, odometry_scale).
+     GNU Radio block wall_fusion does when JADE Estimator does not attach the CSI); a wall
+     across the corridor behind the start, ranged on every pose's CSI, holds the distance
+     travelled (the odometry's scale) where there is one (stats: axial_landmarks,
+     odometry_scale);
+  5. walls JADE does not report, found on the CSI alone: end walls across the track past its
+     ends, and side walls across the track from a line-of-sight wall where an echo of the
+     same delay hid them (--no-side-walls; stats: end_walls, side_walls; GeoJSON "source").
 
 outputs:
   MAP.geojson  FORMATS.md's map: walls (class, confidence), detections, corners, trajectory
@@ -56,6 +60,11 @@ def build_parser():
     p.add_argument("--material", default=None, metavar="NAME",
                    help="wall material for the slab correction when the survey has no thrumapper:wall_model: "
                         "plasterboard (default), stud_wall, brick, concrete, glass, wood, metal, or none")
+    p.add_argument("--no-side-walls", action="store_true",
+                   help="do not search the CSI for walls across the track from the line-of-sight walls where JADE "
+                        "reports none (a corridor driven down its middle: both walls echo with the same delay and "
+                        "JADE often reports one; such walls have \"source\": \"side_wall\" in the GeoJSON; "
+                        "docs/mapping.md, \"Side walls\")")
     p.add_argument("--no-material-labels", action="store_true",
                    help="do not label the walls' materials; by default, with the CSI fits and a survey without "
                         "thrumapper:wall_model, each wall seen from 3 poses or more is labelled plasterboard, brick "
@@ -166,7 +175,8 @@ def main(argv=None):
     try:
         fusion_settings = FusionSettings(material=material, correct_poses=not args.no_pose_correction,
                                          max_range_m=args.max_range_m, min_wall_poses=args.min_wall_poses,
-                                         estimate_materials=not args.no_material_labels)
+                                         estimate_materials=not args.no_material_labels,
+                                         side_walls=not args.no_side_walls)
         fusion_settings.check()
         settings = jade_settings(args.paths, args.stages, args.max_delay_s, args.angles, args.delays)
     except ValueError as err:

@@ -15,8 +15,8 @@ from gnuradio import blocks, gr, gr_unittest
 from gnuradio.thrumapper import bistatic, evaluation
 from gnuradio.thrumapper.survey_blocks import pose_message
 from gnuradio.thrumapper.testing import wait_for
-from gnuradio.thrumapper.wall_fusion import (FusionError, FusionSettings, RadarGeometry, WallFusion, map_to_pmt,
-                                             wall_fusion)
+from gnuradio.thrumapper.wall_fusion import (HIDDEN, LOS, FusionError, FusionSettings, RadarGeometry, WallFusion,
+                                             map_to_pmt, wall_fusion)
 
 C = bistatic.SPEED_OF_LIGHT_M_S
 RADAR = RadarGeometry.uca_pair(subcarriers=64)
@@ -286,6 +286,29 @@ class qa_wall_fusion(gr_unittest.TestCase):
         walls_json = [f["properties"] for f in fused.to_geojson()["features"] if f["properties"]["kind"] == "wall"]
         self.assertEqual(sum(1 for p in walls_json if p["inferred"]), 1)
         self.assertEqual(fused.stats["inferred_walls"], 1)
+
+    def test_hidden_wall_along_a_side_wall_is_absorbed(self):
+        """A side wall found on the CSI along y = 1.0 (facing the track at y = 0) takes over a
+        hidden wall whose line lies 0.3 m behind it along the same stretch (the estimator's
+        mixture of two echoes of one delay placed its echoes there), also when 0.3 m before it
+        or turned 4 deg; it leaves a hidden wall 1.5 m behind it (a room's back wall), one along
+        another stretch, one turned 30 deg, and a line-of-sight wall."""
+        fusion = WallFusion(RADAR, exact_settings())
+
+        def line(y, x0, x1, turn_deg=0.0):
+            t = math.radians(turn_deg)
+            direction = np.array([math.cos(t), math.sin(t)])
+            normal = np.array([direction[1], -direction[0]])  # toward the track at y = 0
+            centre = np.array([0.5 * (x0 + x1), y])
+            return {"centre": centre, "normal": normal, "direction": direction,
+                    "t0": -0.5 * (x1 - x0), "t1": 0.5 * (x1 - x0)}
+
+        side = line(1.0, 0.0, 6.0)
+        walls = [line(1.3, 1.0, 5.0), line(0.7, 1.0, 5.0), line(1.3, 1.0, 5.0, 4.0), line(2.5, 0.0, 6.0),
+                 line(1.3, 9.0, 12.0), line(1.3, 2.0, 4.0, 30.0), line(1.3, 1.0, 5.0)]
+        classes = [HIDDEN] * 6 + [LOS]
+        self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, [side]), {0: 0, 1: 0, 2: 0})
+        self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, []), {})
 
     def test_corner_is_a_landmark_not_a_wall(self):
         """A dihedral corner ahead (the §4.4–4.5 geometry: the wall meets an end wall): its

@@ -270,6 +270,59 @@ class qa_wall_refinement(gr_unittest.TestCase):
         self.assertEqual([w for w in unlabelled.walls if w.material], [])
         self.assertEqual(unlabelled.stats["walls_by_material"], {})
 
+    def test_side_wall_found_where_jade_reports_one(self):
+        """A corridor of two plasterboard walls 2.15 m apart (faces at y = -1.0 and +1.0), the
+        robot down its middle with the office's radar: both walls' echoes come with the same
+        delay, and JADE reports the north wall's on the later poses only (x >= 1.6 m). The
+        side-wall search (WallFusion._side_walls) finds it on the CSI of the first poses,
+        within 8 cm of its face, and the north face is then covered from x = 0 to 6 m. Without
+        the search that stretch is not mapped; with the north wall taken away (a corridor of
+        one wall, nothing across the track), the search finds no wall."""
+        data = scene_data("office_floor")
+        data["walls"] = [{"name": "south", "segment": [[-2.0, -1.075], [10.0, -1.075]], "material": "plasterboard"},
+                         {"name": "north", "segment": [[-2.0, 1.075], [10.0, 1.075]], "material": "plasterboard"}]
+        for key in ("clutter", "doors"):
+            data.pop(key, None)
+        data["impairments"] = dict(data["impairments"], system_delay_known=True)
+        data["trajectory"] = {"waypoints": [[0.0, 0.0], [6.0, 0.0]], "step_m": 0.3}
+        data["frames_per_pose"] = 2
+
+        def mapped(walls, side_walls=True):
+            sc = scene.load_scene(dict(data, walls=walls))
+            res = building_sim.simulate_survey(sc, progress=False)
+            with tempfile.TemporaryDirectory() as tmp:
+                fused, _ = cli_map.map_survey(written_survey(tmp, sc, res, res.poses_true),
+                                              fusion_settings=wf_settings(correct_poses=False, side_walls=side_walls))
+            return fused
+
+        def north_coverage(fused):
+            x = np.arange(0.0, 6.0, 0.01)
+            covered = np.zeros(x.size, bool)
+            for w in fused.walls:
+                (x0, y0), (x1, y1) = sorted([tuple(w.start_m), tuple(w.end_m)])
+                if w.cls != "line_of_sight" or x1 - x0 < 1e-6:
+                    continue
+                inside = (x >= x0) & (x <= x1)
+                covered |= inside & (np.abs(y0 + (x - x0) * (y1 - y0) / (x1 - x0) - 1.0) < 0.15)
+            return float(np.mean(covered))
+
+        fused = mapped(data["walls"])
+        found = [w for w in fused.walls if w.source == "side_wall"]
+        self.assertEqual(len(found), 1, fused.walls)
+        self.assertEqual(found[0].cls, "line_of_sight")
+        for end in (found[0].start_m, found[0].end_m):
+            self.assertLess(abs(end[1] - 1.0), 0.08, found[0])
+        self.assertLess(min(found[0].start_m[0], found[0].end_m[0]), 0.3, found[0])
+        self.assertGreater(north_coverage(fused), 0.9)
+        self.assertEqual(fused.stats["side_walls"], 1)
+        index = next(i for i, w in enumerate(fused.walls) if w is found[0])
+        self.assertEqual(fused.to_geojson()["features"][index]["properties"]["source"], "side_wall")
+        without = mapped(data["walls"], side_walls=False)
+        self.assertEqual([w for w in without.walls if w.source == "side_wall"], [])
+        self.assertLess(north_coverage(without), 0.8)
+        alone = mapped(data["walls"][:1])
+        self.assertEqual([w for w in alone.walls if w.source == "side_wall"], [], alone.walls)
+
     def test_corridor_map_targets(self):
         """§4.4: the corridor scan past a room mapped through thrumapper-map's chain: the issue's
         targets, line-of-sight RMS <= 5 cm and hidden <= 12 cm (the paper: 14 and 25-57 cm);

@@ -109,6 +109,9 @@ class FusionSettings:
     estimate_materials: bool = True
     #: correct the poses (scan-to-map, then a global least-squares adjustment)
     correct_poses: bool = True
+    #: with the CSI, search for walls across the track from the line-of-sight walls where
+    #: JADE reports none (an echo of the same delay as the mapped wall's; WallFusion._side_walls)
+    side_walls: bool = True
     #: odometry error model for the pose correction (1-sigma per step)
     odometry_scale_sigma: float = 0.01
     odometry_heading_sigma_deg_per_m: float = 0.5
@@ -229,6 +232,10 @@ class MapWall:
     #: the material its echoes' strength tells (WallFusion._estimate_materials), or None when
     #: not estimated (no CSI, too few poses, or the survey states the material)
     material: str = None
+    #: what the wall was found from: "echoes" (JADE's, fitted on the CSI where there is one),
+    #: "end_wall" or "side_wall" (hypotheses scored on the CSI alone: WallFusion._end_walls,
+    #: _side_walls), or "inferred" (a gap, see inferred)
+    source: str = "echoes"
 
     @property
     def length_m(self):
@@ -265,7 +272,7 @@ class FusedMap:
             features.append(_feature("LineString", [_xy(w.start_m), _xy(w.end_m)], {
                 "kind": "wall", "class": w.cls, "confidence": round(float(w.confidence), 4),
                 "num_poses": int(w.num_poses), "num_echoes": int(w.num_echoes), "fit_rms_m": round(float(w.rms_m), 4),
-                "normal": _xy(w.normal), "id": i, "inferred": bool(w.inferred),
+                "normal": _xy(w.normal), "id": i, "inferred": bool(w.inferred), "source": w.source,
                 **({"material": w.material} if w.material else {})}))
         points = self.detections if fused_detections else self.echoes
         for cls in CLASSES:
@@ -468,6 +475,22 @@ class WallFusion:
     #: above them)
     END_WALL_SIGNIFICANCE = 10.0
     END_WALL_RISE = 1.2
+    #: side walls (_side_walls): across the track from a line-of-sight wall along it, where
+    #: at least SIDE_WALL_MIN_POSES consecutive poses see no wall on that side, a parallel
+    #: wall is searched for in steps of SIDE_WALL_STEP_M, from SIDE_WALL_MIN_M to
+    #: SIDE_WALL_MAX_M from the track and where its echo comes within SIDE_WALL_COHERENT_S
+    #: of the mapped wall's; taken at a peak inside the search that explains
+    #: END_WALL_SIGNIFICANCE times what white noise would and SIDE_WALL_MIN_SHARE of what the
+    #: mapped walls leave of those poses' CSI (a corridor of one wall: 0.15 at the best
+    #: offset; the office corridors' unreported walls: 0.20-0.89, docs/mapping.md)
+    SIDE_WALL_MIN_POSES = 5
+    SIDE_WALL_MIN_M = 0.4
+    SIDE_WALL_MAX_M = 3.0
+    SIDE_WALL_STEP_M = 0.025
+    SIDE_WALL_COHERENT_S = 1.5e-9
+    SIDE_WALL_MIN_SHARE = 0.2
+    #: a hidden wall this near a side wall's line, along it, is that wall (_absorbed_by_side_walls)
+    SIDE_WALL_ABSORB_M = 0.5
     #: axial landmarks (_axial_landmarks): walls across the track ahead of or behind it, ranged
     #: on each pose's CSI from AXIAL_MIN_M to AXIAL_MAX_M in steps of AXIAL_STEP_M along the
     #: robot's axis (nearer, every pose's profile peaks on the leftovers of the side walls'
@@ -1393,6 +1416,121 @@ class WallFusion:
                           "corners": corners, "poses": len(groups), "confidence": float(0.9 - 0.4 / max(ratio, 1.0))})
         return found
 
+    def _side_walls(self, state, poses, wall_cls):
+        """Walls across the track from a line-of-sight wall, found on the CSI where JADE does
+        not report them. Two walls at the same distance on either side of the robot (a
+        corridor driven down its middle) echo with the same delay: the subcarrier smoothing
+        that lets JADE resolve coherent echoes by their delays cannot tell them apart, and it
+        reports one of them, or a mixture of both at neither's angle (docs/mapping.md). The
+        CSI fits then model one wall and not the other. Along each line-of-sight wall that
+        runs with the track, on the stretches of at least SIDE_WALL_MIN_POSES consecutive
+        poses that see no mapped wall across the track, a parallel wall across the track is
+        hypothesised every SIDE_WALL_STEP_M and scored on those poses' CSI with everything
+        mapped projected out (CsiWallRefiner.side_wall_scores), only where its echo would
+        come within SIDE_WALL_COHERENT_S of wall k's, and taken at a peak inside the search
+        that explains END_WALL_SIGNIFICANCE times what white noise would and
+        SIDE_WALL_MIN_SHARE of what the mapped walls leave. Returns dicts: centre, normal, direction, t0, t1 (world), corners (none), poses,
+        confidence."""
+        walls = state["walls"]
+        if len(poses) < self.SIDE_WALL_MIN_POSES or not walls:
+            return []
+        self._refiner_map(state, poses, wall_cls)
+        track = poses[-1, :2] - poses[0, :2]
+        if np.hypot(*track) < 1e-6:
+            return []
+        track = track / np.hypot(*track)
+        sin_along = math.sin(math.radians(self.END_WALL_SIDE_ANGLE_DEG))
+        cos_facing = math.cos(math.radians(self.END_WALL_SIDE_ANGLE_DEG))
+        los = [k for k, c in enumerate(wall_cls) if c == LOS]
+        group = state["group"]
+        robot = np.array([bistatic.robot_to_world(self.robot_c, p) for p in poses])
+        found = []
+        order = sorted(los, key=lambda k: -(walls[k]["t1"] - walls[k]["t0"]))
+        for k in order:
+            w = walls[k]
+            if abs(w["normal"] @ track) > sin_along or \
+                    np.unique(group[w["members"]]).size < self.EXTENSION_MIN_POSES:
+                continue
+            across = [j for j in los if float(walls[j]["normal"] @ w["normal"]) < -cos_facing]
+            taken = [f for f in found if float(f["normal"] @ -w["normal"]) > cos_facing]
+            free = [g for g in sorted(self.refiner.poses)
+                    if g < len(poses) and self.refiner.sees(g, k)
+                    and not any(self.refiner.sees(g, j) for j in across)
+                    and not any(g in f["groups"] for f in taken)]
+            runs, run = [], []
+            for g in free:
+                if run and g - run[-1] > 1:
+                    runs.append(run)
+                    run = []
+                run.append(g)
+            runs.append(run)
+            for run in runs:
+                if len(run) < self.SIDE_WALL_MIN_POSES:
+                    continue
+                distance = (robot[run] - w["centre"]) @ w["normal"]  # the track from wall k
+                if np.any(distance <= 0):
+                    continue
+                # only where its echo comes within SIDE_WALL_COHERENT_S of wall k's: farther
+                # apart, the estimator resolves the two, and a wall it does not report is not there
+                half_b = 0.5 * float(np.hypot(*(self.rx_c - self.tx_c)))
+                delay_k = 2.0 * math.hypot(float(distance.mean()), half_b) / C
+                reach = [0.5 * C * (delay_k + sign * self.SIDE_WALL_COHERENT_S) for sign in (-1.0, 1.0)]
+                lo = max(self.SIDE_WALL_MIN_M, math.sqrt(max(reach[0] ** 2 - half_b ** 2, 0.0)))
+                hi = min(self.SIDE_WALL_MAX_M, math.sqrt(reach[1] ** 2 - half_b ** 2))
+                offsets = distance.mean() + np.arange(lo, hi + 1e-9, self.SIDE_WALL_STEP_M)
+                if offsets.size < 3:
+                    continue
+                scores, noise, residual = self.refiner.side_wall_scores(w["centre"], w["normal"], offsets, run)
+                best = int(np.argmax(scores))
+                if not (0 < best < offsets.size - 1 and scores[best] >= self.END_WALL_SIGNIFICANCE * noise[best] and
+                        scores[best] >= self.SIDE_WALL_MIN_SHARE * residual):
+                    continue
+                d = offsets[best] + _peak_offset(*scores[best - 1:best + 2]) * self.SIDE_WALL_STEP_M
+                point = w["centre"] + d * w["normal"]
+                normal = -w["normal"]
+                direction = np.array([-normal[1], normal[0]])
+                ts, zones = [], []
+                for g in run:
+                    try:
+                        _, _, spec_r = bistatic.specular_path(bistatic.world_to_robot(point, poses[g]),
+                                                              bistatic.rotate(normal, -poses[g][2]), self.tx_c, self.rx_c)
+                    except bistatic.GeometryError:
+                        continue
+                    ts.append(float((bistatic.robot_to_world(spec_r, poses[g]) - point) @ direction))
+                    zones.append(0.5 * math.sqrt(self.wavelength_m * max(float(np.hypot(*(spec_r - self.robot_c))), 0.1)))
+                if not ts:
+                    continue
+                lo, hi = int(np.argmin(ts)), int(np.argmax(ts))
+                ratio = scores[best] / max(noise[best], 1e-300) / self.END_WALL_SIGNIFICANCE
+                found.append({"centre": point, "normal": normal, "direction": direction,
+                              "t0": ts[lo] - zones[lo], "t1": ts[hi] + zones[hi], "corners": [], "poses": len(run),
+                              "groups": set(run), "confidence": float(0.9 - 0.4 / max(ratio, 1.0))})
+        return found
+
+    def _absorbed_by_side_walls(self, walls, wall_cls, side_walls):
+        """{hidden wall index: side wall index} for the hidden walls within SIDE_WALL_ABSORB_M
+        of a side wall's line, facing the same way (LINE_ANGLE_DEG), and lying along it for
+        most of their length: JADE's mixture of two echoes of one delay put the side wall's
+        echoes there (the office's north corridor wall, mapped 0.3 m behind its face and
+        classed hidden where the side-wall search found it)."""
+        cos_tol = math.cos(math.radians(self.LINE_ANGLE_DEG))
+        out = {}
+        for k, w in enumerate(walls):
+            if wall_cls[k] != HIDDEN:
+                continue
+            ends = [w["centre"] + t * w["direction"] for t in (w["t0"], w["t1"])]
+            for n, f in enumerate(side_walls):
+                if float(w["normal"] @ f["normal"]) < cos_tol:
+                    continue
+                if max(abs(float((e - f["centre"]) @ f["normal"])) for e in ends) > self.SIDE_WALL_ABSORB_M:
+                    continue
+                t = sorted(float((e - f["centre"]) @ f["direction"]) for e in ends)
+                overlap = min(t[1], f["t1"]) - max(t[0], f["t0"])
+                if overlap >= 0.5 * (t[1] - t[0]):
+                    out[k] = n
+                    break
+        return out
+
     def _axial_landmarks(self, state, poses, wall_cls, previous=()):
         """Walls across the track, ahead of its end or behind its start, ranged from each pose
         on the CSI: the along-track landmarks the pose adjustment needs for the odometry's
@@ -1600,12 +1738,14 @@ class WallFusion:
             corrected = True
         det_cls, wall_cls = self._classify(state)
         end_walls = self._timed("end walls", self._end_walls, state, poses, wall_cls) if self._fits_on_csi else []
+        side_walls = self._timed("side walls", self._side_walls, state, poses, wall_cls) \
+            if self._fits_on_csi and self.settings.side_walls else []
         self._wall_material_names = {}
         if self._fits_on_csi and self.settings.estimate_materials and self.material is not None \
                 and not self.material.conductor:
             self._wall_material_names = self._timed("materials", self._estimate_materials, state, poses, wall_cls)
         result = self._timed("output", self._assemble, det, poses, odometry, state, det_cls, wall_cls, ghosts,
-                             frame_indices, stats, end_walls)
+                             frame_indices, stats, end_walls, side_walls)
         result.stats["poses_corrected"] = corrected
         result.stats["unconfirmed_echoes"] = int(np.count_nonzero(self._unconfirmed))
         if self._odometry_fit:
@@ -1935,7 +2075,8 @@ class WallFusion:
         return list(groups.values())
 
     # -- output ----------------------------------------------------------------------------
-    def _assemble(self, det, poses, odometry, state, det_cls, wall_cls, ghosts, frame_indices, stats, end_walls=()):
+    def _assemble(self, det, poses, odometry, state, det_cls, wall_cls, ghosts, frame_indices, stats, end_walls=(),
+                  side_walls=()):
         s = self.settings
         walls_in = state["walls"]
         labels = state["labels"]
@@ -2001,6 +2142,13 @@ class WallFusion:
         walls = []
         detections = {c: [] for c in CLASSES}
         echoes = {c: [] for c in CLASSES}
+        # a hidden wall just behind (or before) a side wall, along it, is that wall's echoes
+        # placed off by the estimator's mixture of the two walls of one delay: they become the
+        # side wall's detections, and the hidden wall goes (after the gaps are bridged, which
+        # index the walls as walls_in)
+        absorbed = self._absorbed_by_side_walls(walls_in, wall_cls, side_walls)
+        for k, n_side in absorbed.items():
+            side_walls[n_side]["echoes"] = side_walls[n_side].get("echoes", 0) + int(walls_in[k]["members"].size)
         for k, w in enumerate(walls_in):
             members = w["members"]
             resid = (pw[members] - w["centre"]) @ w["normal"]
@@ -2014,14 +2162,27 @@ class WallFusion:
             end = w["centre"] + ends[k][1] * w["direction"]
             walls.append(MapWall(start, end, w["normal"].copy(), cls, float(confidence), n_poses, int(members.size), rms,
                                  material=self._wall_material_names.get(k)))
+            owner, owner_cls = (side_walls[absorbed[k]], CLASSES[LOS]) if k in absorbed else (w, cls)
             for i in members:
-                echoes[cls].append(pw[i])
-                detections[cls].append(self._fused_point(w, poses[group[i]], pw[i]))
-        walls += self._gap_bridges(walls, [k for k, c in enumerate(wall_cls) if c == LOS], walls_in, poses)
-        for end_wall in end_walls:  # no echo of its own: fitted on the CSI alone
-            walls.append(MapWall(end_wall["centre"] + end_wall["t0"] * end_wall["direction"],
-                                 end_wall["centre"] + end_wall["t1"] * end_wall["direction"], end_wall["normal"].copy(),
-                                 CLASSES[LOS], end_wall["confidence"], end_wall["poses"], 0, 0.0))
+                echoes[owner_cls].append(pw[i])
+                detections[owner_cls].append(self._fused_point(owner, poses[group[i]], pw[i]))
+        bridges = self._gap_bridges(walls, [k for k, c in enumerate(wall_cls) if c == LOS], walls_in, poses)
+        kept = [k for k in range(len(walls_in)) if k not in absorbed]
+        walls = [walls[k] for k in kept] + bridges
+        # the corners name their walls by index: walls_in's, then the end walls after them;
+        # in the map, the kept walls, the gaps, the end walls, the side walls
+        index = {k: n for n, k in enumerate(kept)}
+        first_end = len(walls)
+        index.update({k: first_end + len(end_walls) + n_side for k, n_side in absorbed.items()})
+        index.update({len(walls_in) + n: first_end + n for n in range(len(end_walls))})
+        for c in corners:
+            c.walls = tuple(index[k] for k in c.walls)
+        for source, found in (("end_wall", end_walls), ("side_wall", side_walls)):
+            for end_wall in found:  # fitted on the CSI alone (a side wall may have taken echoes)
+                walls.append(MapWall(end_wall["centre"] + end_wall["t0"] * end_wall["direction"],
+                                     end_wall["centre"] + end_wall["t1"] * end_wall["direction"],
+                                     end_wall["normal"].copy(), CLASSES[LOS], end_wall["confidence"], end_wall["poses"],
+                                     end_wall.get("echoes", 0), 0.0, source=source))
         for cls in CLASSES:
             detections[cls] = np.array(detections[cls]).reshape(-1, 2)
             echoes[cls] = np.array(echoes[cls]).reshape(-1, 2)
@@ -2031,7 +2192,8 @@ class WallFusion:
                       "wall_echoes": int(np.count_nonzero(labels >= 0)),
                       "corner_echoes": int(np.count_nonzero(labels == CORNER)),
                       "unassigned_echoes": int(np.count_nonzero((labels == UNASSIGNED) & ~ghosts)),
-                      "end_walls": len(end_walls), "inferred_walls": sum(1 for w in walls if w.inferred),
+                      "end_walls": len(end_walls), "side_walls": len(side_walls),
+                      "walls_absorbed_by_side_walls": len(absorbed), "inferred_walls": sum(1 for w in walls if w.inferred),
                       "walls_by_material": {m: sum(1 for w in walls if w.material == m)
                                             for m in sorted({w.material for w in walls if w.material})}})
         return FusedMap(walls, corners, scatterers, detections, echoes, poses, odometry, frame_indices, stats)
@@ -2061,7 +2223,8 @@ class WallFusion:
                     if clear and np.hypot(*d) <= self.LINE_GAP_M:
                         normal = last.normal + w.normal
                         bridges.append(MapWall(a.copy(), b.copy(), normal / np.hypot(*normal), CLASSES[LOS],
-                                               0.5 * min(last.confidence, w.confidence), 0, 0, 0.0, inferred=True))
+                                               0.5 * min(last.confidence, w.confidence), 0, 0, 0.0, inferred=True,
+                                               source="inferred"))
                 if hi > reach:
                     reach, last = hi, w
         return bridges
@@ -2237,7 +2400,7 @@ def csi_from_pmt(msg):
 
 def map_to_pmt(fused):
     """The map as a PMT dict: num_poses, walls (vector of dicts: class, confidence, start,
-    end, num_poses, and material when estimated), corners (vector of dicts: position,
+    end, num_poses, source, and material when estimated), corners (vector of dicts: position,
     confidence, class), detections (dict class -> f64vector x0, y0, x1, y1, ...), trajectory
     (f64vector x, y, heading per pose), stats (dict of numbers)."""
     def f64(values):
@@ -2252,6 +2415,7 @@ def map_to_pmt(fused):
         d = pmt.dict_add(d, pmt.intern("start"), f64(w.start_m))
         d = pmt.dict_add(d, pmt.intern("end"), f64(w.end_m))
         d = pmt.dict_add(d, pmt.intern("num_poses"), pmt.from_long(int(w.num_poses)))
+        d = pmt.dict_add(d, pmt.intern("source"), pmt.intern(w.source))
         if w.material:
             d = pmt.dict_add(d, pmt.intern("material"), pmt.intern(w.material))
         pmt.vector_set(walls, i, d)

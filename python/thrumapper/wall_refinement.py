@@ -499,6 +499,22 @@ class CsiWallRefiner:
             self._axial_cache = {key: (echo, np.sum(np.abs(echo) ** 2, axis=1))}  # one direction at a time
         return self._axial_cache[key]
 
+    def _residuals(self, groups):
+        """Per group of these with CSI: (g, data, pose, basis, residual, residual energy,
+        residual dimension), the residual being the CSI with the mapped walls' echoes and the
+        cancelled direct path projected out (not JADE's unexplained paths: the hypotheses
+        scored against it are what the estimator misplaced)."""
+        out = []
+        for g in groups:
+            if g not in self.poses:
+                continue
+            data, pose = self.poses[g], self.world_poses[g]
+            basis = self._basis(g, None, unexplained_paths=False)
+            residual = self._project_out(data.rows.T, basis).T
+            rank = 0 if basis is None else basis.shape[1]
+            out.append((g, data, pose, basis, residual, float(np.sum(np.abs(residual) ** 2)), residual.shape[1] - rank))
+        return out
+
     def end_wall_scores(self, origin_m, direction, distances_m, groups, side_walls):
         """How much of the CSI a wall across the track explains, at each distance ahead.
 
@@ -515,16 +531,7 @@ class CsiWallRefiner:
         over the residual's dimension, times the residual energy)."""
         u = np.asarray(direction, float) / np.hypot(*direction)
         origin = np.asarray(origin_m, float)
-        prepared = []
-        for g in groups:
-            if g not in self.poses:
-                continue
-            data, pose = self.poses[g], self.world_poses[g]
-            basis = self._basis(g, None, unexplained_paths=False)
-            residual = self._project_out(data.rows.T, basis).T
-            rank = 0 if basis is None else basis.shape[1]
-            prepared.append((g, data, pose, basis, residual, float(np.sum(np.abs(residual) ** 2)),
-                             residual.shape[1] - rank))
+        prepared = self._residuals(groups)
         scores = np.zeros(len(distances_m))
         noise = np.zeros(len(distances_m))
         for i, d in enumerate(distances_m):
@@ -551,6 +558,41 @@ class CsiWallRefiner:
                 scores[i] += float(np.sum(np.abs(residual @ q.conj()) ** 2))
                 noise[i] += energy * q.shape[1] / max(dims, 1)
         return scores, noise
+
+
+    # -- a wall beside the track that JADE does not report -------------------------------
+    def side_wall_scores(self, point_m, toward, offsets_m, groups):
+        """How much of the CSI a wall parallel to a mapped one, across the track from it,
+        explains, at each offset.
+
+        The hypothesis at offset d: a wall through point_m + d·toward (world; toward, unit,
+        points from the mapped wall across the track) facing back along -toward, its own
+        specular echo with a free complex gain per frame. Per group, everything modelled
+        there (the mapped walls' echoes, the cancelled direct path; not JADE's other paths,
+        which are where the estimator put this wall's echo mixed with the mapped one's) is
+        projected out of the data and of the hypothesis first.
+
+        Returns (J (D,), noise (D,), residual energy): J and noise as end_wall_scores, and
+        the energy of the data with everything mapped projected out, summed over the groups."""
+        u = np.asarray(toward, float) / np.hypot(*toward)
+        origin = np.asarray(point_m, float)
+        scores = np.zeros(len(offsets_m))
+        noise = np.zeros(len(offsets_m))
+        total = 0.0
+        for g, data, pose, basis, residual, energy, dims in self._residuals(groups):
+            total += energy
+            normal_r = bistatic.rotate(-u, -pose[2])
+            for i, d in enumerate(offsets_m):
+                point_r = bistatic.world_to_robot(origin + float(d) * u, pose)
+                if (self.tx_c - point_r) @ normal_r <= 0 or (self.rx_c - point_r) @ normal_r <= 0:
+                    continue  # the arrays are not in front of it
+                v = self._project_out((data.model.echo_csi(point_r, normal_r, self.material) * self._sys).ravel(), basis)
+                norm = float(np.vdot(v, v).real)
+                if norm <= 0:
+                    continue
+                scores[i] += float(np.sum(np.abs(residual @ v.conj()) ** 2)) / norm
+                noise[i] += energy / max(dims, 1)
+        return scores, noise, total
 
 
 def _quadratic_search(f, max_x, max_y, step_x, step_y, final_x, final_y):
