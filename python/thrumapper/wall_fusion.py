@@ -1435,10 +1435,6 @@ class WallFusion:
         if len(poses) < self.SIDE_WALL_MIN_POSES or not walls:
             return []
         self._refiner_map(state, poses, wall_cls)
-        track = poses[-1, :2] - poses[0, :2]
-        if np.hypot(*track) < 1e-6:
-            return []
-        track = track / np.hypot(*track)
         sin_along = math.sin(math.radians(self.END_WALL_SIDE_ANGLE_DEG))
         cos_facing = math.cos(math.radians(self.END_WALL_SIDE_ANGLE_DEG))
         los = [k for k, c in enumerate(wall_cls) if c == LOS]
@@ -1448,8 +1444,7 @@ class WallFusion:
         order = sorted(los, key=lambda k: -(walls[k]["t1"] - walls[k]["t0"]))
         for k in order:
             w = walls[k]
-            if abs(w["normal"] @ track) > sin_along or \
-                    np.unique(group[w["members"]]).size < self.EXTENSION_MIN_POSES:
+            if np.unique(group[w["members"]]).size < self.EXTENSION_MIN_POSES:
                 continue
             across = [j for j in los if float(walls[j]["normal"] @ w["normal"]) < -cos_facing]
             taken = [f for f in found if float(f["normal"] @ -w["normal"]) > cos_facing]
@@ -1466,6 +1461,10 @@ class WallFusion:
             runs.append(run)
             for run in runs:
                 if len(run) < self.SIDE_WALL_MIN_POSES:
+                    continue
+                # the stretch runs along wall k (a track that turns has stretches that do not)
+                heading = np.array([np.mean(np.cos(poses[run, 2])), np.mean(np.sin(poses[run, 2]))])
+                if np.hypot(*heading) < 0.9 or abs(w["normal"] @ heading) > sin_along * np.hypot(*heading):
                     continue
                 distance = (robot[run] - w["centre"]) @ w["normal"]  # the track from wall k
                 if np.any(distance <= 0):
