@@ -2271,12 +2271,17 @@ def plot_map(fused, png_path, title=None, truth=None, dpi=120):
             ax.plot(e[:, 0], e[:, 1], ".", ms=3, color=colours[cls], alpha=0.35,
                     label=f"echoes ({cls.replace('_', ' ')})")
     labelled = set()
+    # dotted: a gap inferred between two pieces; dash-dot: found on the CSI alone (end and
+    # side walls, no echo JADE reported)
+    styles = {"inferred": ":", "end_wall": "-.", "side_wall": "-."}
     for w in fused.walls:
         xy = np.vstack((w.start_m, w.end_m))
-        label = None if w.cls in labelled else f"wall, {w.cls.replace('_', ' ')}"
-        labelled.add(w.cls)
-        ax.plot(xy[:, 0], xy[:, 1], ":" if w.inferred else "-", color=colours[w.cls], lw=1.0 + 2.5 * w.confidence,
-                label=label)
+        kind = (w.cls, w.source in ("end_wall", "side_wall"))
+        label = None if kind in labelled else \
+            f"wall, {w.cls.replace('_', ' ')}" + (", found on the CSI" if kind[1] else "")
+        labelled.add(kind)
+        ax.plot(xy[:, 0], xy[:, 1], styles.get(w.source, ":" if w.inferred else "-"), color=colours[w.cls],
+                lw=1.0 + 2.5 * w.confidence, label=label)
         if w.material and w.material != fused.stats.get("material"):  # the walls not like the rest
             mid = xy.mean(axis=0) + 0.15 * w.normal
             ax.annotate(w.material, mid, fontsize=7, color=colours[w.cls], ha="center", va="center")
