@@ -60,6 +60,10 @@ def build_parser():
     p.add_argument("--material", default=None, metavar="NAME",
                    help="wall material for the slab correction when the survey has no thrumapper:wall_model: "
                         "plasterboard (default), stud_wall, brick, concrete, glass, wood, metal, or none")
+    p.add_argument("--no-material-corrections", action="store_true",
+                   help="keep hidden walls labelled brick or concrete where the survey material's echo model "
+                        "fits them (by default each is moved by what its own material's model changes in its CSI "
+                        "fit: 0.2-0.26 m inward on the office floors; stats: material_corrections_m)")
     p.add_argument("--no-side-walls", action="store_true",
                    help="do not search the CSI for walls across the track from the line-of-sight walls where JADE "
                         "reports none (a corridor driven down its middle: both walls echo with the same delay and "
@@ -176,7 +180,8 @@ def main(argv=None):
         fusion_settings = FusionSettings(material=material, correct_poses=not args.no_pose_correction,
                                          max_range_m=args.max_range_m, min_wall_poses=args.min_wall_poses,
                                          estimate_materials=not args.no_material_labels,
-                                         side_walls=not args.no_side_walls)
+                                         side_walls=not args.no_side_walls,
+                                         correct_materials=not args.no_material_corrections)
         fusion_settings.check()
         settings = jade_settings(args.paths, args.stages, args.max_delay_s, args.angles, args.delays)
     except ValueError as err:

@@ -241,7 +241,10 @@ class qa_wall_refinement(gr_unittest.TestCase):
         about 2.5 times what the plasterboard model predicts, and the plasterboard piece's is
         not: the brick piece is labelled a dense material (brick, or concrete, which its
         strength alone does not tell from brick), the plasterboard piece and the corridor wall
-        plasterboard. With --no-material-labels (estimate_materials off) no wall is labelled."""
+        plasterboard. The brick piece, hidden, is then moved by what the brick model changes in
+        its fit, onto its face (WallFusion._material_corrections). With --no-material-labels
+        (estimate_materials off) no wall is labelled, and the brick piece stays where the
+        plasterboard model puts it, more than 0.15 m beyond its face."""
         data = scene_data("paper_4_4_corridor_corner")
         data["walls"] = [{"name": "corridor", "segment": [[-1.0, -0.775], [11.0, -0.775]], "material": "plasterboard"},
                          {"name": "brick", "segment": [[-1.0, -2.425], [4.5, -2.425]], "material": "brick"},
@@ -269,6 +272,15 @@ class qa_wall_refinement(gr_unittest.TestCase):
         self.assertEqual({w.material for w in plaster}, {"plasterboard"}, plaster)
         self.assertEqual([w for w in unlabelled.walls if w.material], [])
         self.assertEqual(unlabelled.stats["walls_by_material"], {})
+        # the brick piece moved by what its own material's echo changes in its fit: fitted with
+        # the plasterboard model it lies 0.2-0.25 m beyond its face (y = -2.325), as unlabelled
+        for w in brick:
+            self.assertLess(max(abs(w.start_m[1] + 2.325), abs(w.end_m[1] + 2.325)), 0.05, w)
+        brick_unlabelled = [w for w in unlabelled.walls if w.cls == "hidden" and max(w.start_m[0], w.end_m[0]) < 4.6]
+        self.assertTrue(brick_unlabelled)
+        for w in brick_unlabelled:
+            self.assertGreater(min(abs(w.start_m[1] + 2.325), abs(w.end_m[1] + 2.325)), 0.15, w)
+        self.assertEqual(len(fused.stats["material_corrections_m"]), len(brick), fused.stats["material_corrections_m"])
 
     def test_side_wall_found_where_jade_reports_one(self):
         """A corridor of two plasterboard walls 2.15 m apart (faces at y = -1.0 and +1.0), the

@@ -107,6 +107,9 @@ class FusionSettings:
     #: are against the line-of-sight walls' (WallFusion._estimate_materials); off when the
     #: survey states its walls' material (thrumapper:wall_model)
     estimate_materials: bool = True
+    #: ...and move each hidden wall labelled other than the survey's material by what its
+    #: material's echo model changes in its CSI fit (WallFusion._material_corrections)
+    correct_materials: bool = True
     #: correct the poses (scan-to-map, then a global least-squares adjustment)
     correct_poses: bool = True
     #: with the CSI, search for walls across the track from the line-of-sight walls where
@@ -1198,6 +1201,31 @@ class WallFusion:
             names[k] = min(miss, key=miss.get)
         return names
 
+    def _material_corrections(self, state, wall_cls):
+        """Each hidden wall labelled with another material than the survey's moved along its
+        normal, with its echoes, by what that material's echo model changes in its CSI fit
+        (CsiWallRefiner.material_shift; a shift at the fit's bound is not taken). Only hidden
+        walls: the line-of-sight walls are the labels' reference, the survey's material, and
+        one labelled otherwise is more likely a wall the fit got wrong (skewed_walls' 18 deg
+        wall, labelled concrete) than a brick wall in a plasterboard corridor. The fits of the
+        other walls are not made again (fed back into every fit and the pose rounds, the labels
+        made the office maps worse: docs/mapping.md, "Materials"). Needs the refiner holding
+        this map (_estimate_materials hands it over). Returns {wall index: offset_m}."""
+        moved = {}
+        for k, name in sorted(self._wall_material_names.items()):
+            if wall_cls[k] != HIDDEN or name == getattr(self.material, "name", None) or \
+                    name not in scene.MATERIAL_PRESETS:
+                continue
+            offset = self.refiner.material_shift(k, scene.MATERIAL_PRESETS[name])
+            if abs(offset) >= self.refiner.settings.max_offset_m:
+                continue  # at the fit's bound: not a measurement
+            w = state["walls"][k]
+            shift = offset * w["normal"]
+            state["pw"][w["members"]] += shift
+            state["walls"][k] = dict(w, centre=w["centre"] + shift)
+            moved[k] = round(float(offset), 4)
+        return moved
+
     def _refiner_map(self, state, poses, wall_cls=None):
         """Hand the CSI refiner this map: its walls, the poses, JADE's paths per group, and
         which walls are hidden (wall_cls; classified here when not given)."""
@@ -1743,6 +1771,8 @@ class WallFusion:
         if self._fits_on_csi and self.settings.estimate_materials and self.material is not None \
                 and not self.material.conductor:
             self._wall_material_names = self._timed("materials", self._estimate_materials, state, poses, wall_cls)
+            if self.settings.correct_materials:
+                stats["material_corrections_m"] = self._timed("materials", self._material_corrections, state, wall_cls)
         result = self._timed("output", self._assemble, det, poses, odometry, state, det_cls, wall_cls, ghosts,
                              frame_indices, stats, end_walls, side_walls)
         result.stats["poses_corrected"] = corrected

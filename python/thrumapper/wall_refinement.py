@@ -224,10 +224,10 @@ class CsiWallRefiner:
         cols.append(data.direct)
         return self._orthonormal(cols)
 
-    def _fit(self, k, groups, pivot, step_m, step_deg, base=None, bases=None, crossed=None):
+    def _fit(self, k, groups, pivot, step_m, step_deg, base=None, bases=None, crossed=None, material=None):
         """(offset, rotation, moved wall) maximising J over these groups for wall k, moved
         from `base` (default: the map's wall k), against `bases` (per group; default: every
-        thing else modelled there)."""
+        thing else modelled there), with the echo of `material` (default: the survey's)."""
         s = self.settings
         base = self.walls[k] if base is None else base
         crossed = self._crossed_for(k) if crossed is None else crossed
@@ -249,7 +249,7 @@ class CsiWallRefiner:
             trial = moved_wall(offset, rotation)
             total = 0.0
             for g, rows, basis in prepared:
-                e = self._echo(self.poses[g], trial, self.world_poses[g], crossed)
+                e = self._echo(self.poses[g], trial, self.world_poses[g], crossed, material)
                 if e is not None:
                     total += self._explained(e[0], basis, rows)
             return total
@@ -307,6 +307,28 @@ class CsiWallRefiner:
         crossing = crossed(spec, pose)
         indices = [j for j, w in enumerate(self.walls) if any(w is c for c in crossing)]
         return {"gain": float(np.sqrt(np.mean(np.abs(gains) ** 2))), "predicted": predicted, "crossed": indices}
+
+    def material_shift(self, k, material, max_groups=12):
+        """How far wall k moves along its normal when its echo is modelled with `material` (a
+        scene.Material) instead of the survey's: the difference of two fits of the wall on the
+        same groups' CSI against the same bases, one with each model (offset and turn free in
+        both; a material changes the echo's delay, not the wall's direction, so only the
+        offsets' difference is returned). The difference, not the second fit alone, is what
+        the map takes: the wall's place from all its echoes stays, and only what the model
+        changes is added (a brick wall fitted with the plasterboard model lies 0.2-0.3 m too
+        far). The groups are those that see the wall, at most max_groups spread along it; 0.0
+        when none does."""
+        groups = [g for g in sorted(self.poses) if g < len(self.world_poses) and self.sees(g, k)]
+        if not groups:
+            return 0.0
+        if len(groups) > max_groups:
+            groups = [groups[i] for i in np.linspace(0, len(groups) - 1, max_groups).round().astype(int)]
+        wall = self.walls[k]
+        pivot = np.mean([self._pivot(wall, self.world_poses[g]) for g in groups], axis=0)
+        bases = {g: self._basis(g, k) for g in groups}
+        own = self._fit(k, groups, pivot, 0.04, 1.0, bases=bases)
+        other = self._fit(k, groups, pivot, 0.04, 1.0, bases=bases, material=material)
+        return float(other[0] - own[0])
 
     def confirm_echoes(self, g, candidates, confirmed=()):
         """Which of the walls `candidates` group g's CSI holds an echo of, and where.
