@@ -63,7 +63,7 @@ def build_parser():
     p.add_argument("--no-material-corrections", action="store_true",
                    help="keep hidden walls labelled brick or concrete where the survey material's echo model "
                         "fits them (by default each is moved by what its own material's model changes in its CSI "
-                        "fit: 0.2-0.26 m inward on the office floors; stats: material_corrections_m)")
+                        "fit: 0.18-0.30 m inward on the office floors; stats: material_corrections_m)")
     p.add_argument("--no-side-walls", action="store_true",
                    help="do not search the CSI for walls across the track from the line-of-sight walls where JADE "
                         "reports none (a corridor driven down its middle: both walls echo with the same delay and "

@@ -308,7 +308,7 @@ class CsiWallRefiner:
         indices = [j for j, w in enumerate(self.walls) if any(w is c for c in crossing)]
         return {"gain": float(np.sqrt(np.mean(np.abs(gains) ** 2))), "predicted": predicted, "crossed": indices}
 
-    def material_shift(self, k, material, max_groups=12):
+    def material_shift(self, k, material, max_groups=6):
         """How far wall k moves along its normal when its echo is modelled with `material` (a
         scene.Material) instead of the survey's: the difference of two fits of the wall on the
         same groups' CSI against the same bases, one with each model (offset and turn free in
