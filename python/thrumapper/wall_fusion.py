@@ -230,16 +230,18 @@ class MapWall:
     num_echoes: int
     rms_m: float  # RMS distance of its echoes' points to the line
     corners: list = field(default_factory=list)
-    #: a gap between two pieces of one line-of-sight wall, drawn without echoes of its own
-    inferred: bool = False
     #: the material its echoes' strength tells (WallFusion._estimate_materials), or None when
     #: not estimated (no CSI, too few poses, or the survey states the material)
     material: str = None
     #: what the wall was found from: "echoes" (JADE's, fitted on the CSI where there is one),
     #: "end_wall" or "side_wall" (hypotheses scored on the CSI alone: WallFusion._end_walls,
-    #: _side_walls), or "inferred" (a gap, see inferred)
+    #: _side_walls), or "inferred" (a gap between two pieces of one line-of-sight wall, drawn
+    #: without echoes of its own)
     source: str = "echoes"
 
+    @property
+    def inferred(self):
+        return self.source == "inferred"
     @property
     def length_m(self):
         return float(np.hypot(*(self.end_m - self.start_m)))
@@ -819,7 +821,7 @@ class WallFusion:
         compat = (dist.T < tol) & (nrm @ nrm.T > cos_tol)  # [i, j]
         free = np.ones(idx.size, bool)
         tried = np.zeros(idx.size, bool)
-        half_zone = 0.5 * np.sqrt(self.wavelength_m * np.maximum(rng, 0.1))  # half a Fresnel zone
+        half_zone = self._half_fresnel_m(rng)
         onehot = np.zeros((idx.size, int(grp.max()) + 1), np.float32)
         onehot[np.arange(idx.size), grp] = 1.0
         compat_f = compat.astype(np.float32)
@@ -871,6 +873,11 @@ class WallFusion:
                           "members": idx[run]})
             free[run] = False
         return self._merge_walls(walls, pw, nw)
+
+    def _half_fresnel_m(self, range_m):
+        """Half a Fresnel zone at this range (at least 0.1 m): how far past its last echo's
+        point a wall is drawn."""
+        return 0.5 * np.sqrt(self.wavelength_m * np.maximum(range_m, 0.1))
 
     def _merge_walls(self, walls, pw, nw):
         """Merge collinear walls whose extents overlap or nearly meet."""
@@ -1213,8 +1220,7 @@ class WallFusion:
         this map (_estimate_materials hands it over). Returns {wall index: offset_m}."""
         moved = {}
         for k, name in sorted(self._wall_material_names.items()):
-            if wall_cls[k] != HIDDEN or name == getattr(self.material, "name", None) or \
-                    name not in scene.MATERIAL_PRESETS:
+            if wall_cls[k] != HIDDEN or name == getattr(self.material, "name", None):
                 continue
             offset = self.refiner.material_shift(k, scene.MATERIAL_PRESETS[name])
             if abs(offset) >= self.refiner.settings.max_offset_m:
@@ -1457,8 +1463,8 @@ class WallFusion:
         mapped projected out (CsiWallRefiner.side_wall_scores), only where its echo would
         come within SIDE_WALL_COHERENT_S of wall k's, and taken at a peak inside the search
         that explains END_WALL_SIGNIFICANCE times what white noise would and
-        SIDE_WALL_MIN_SHARE of what the mapped walls leave. Returns dicts: centre, normal, direction, t0, t1 (world), corners (none), poses,
-        confidence."""
+        SIDE_WALL_MIN_SHARE of what the mapped walls leave. Returns dicts: centre, normal,
+        direction, t0, t1 (world), corners (none), poses, groups, confidence."""
         walls = state["walls"]
         if len(poses) < self.SIDE_WALL_MIN_POSES or not walls:
             return []
@@ -1468,6 +1474,7 @@ class WallFusion:
         los = [k for k, c in enumerate(wall_cls) if c == LOS]
         group = state["group"]
         robot = np.array([bistatic.robot_to_world(self.robot_c, p) for p in poses])
+        half_b = 0.5 * float(np.hypot(*(self.rx_c - self.tx_c)))
         found = []
         order = sorted(los, key=lambda k: -(walls[k]["t1"] - walls[k]["t0"]))
         for k in order:
@@ -1499,7 +1506,6 @@ class WallFusion:
                     continue
                 # only where its echo comes within SIDE_WALL_COHERENT_S of wall k's: farther
                 # apart, the estimator resolves the two, and a wall it does not report is not there
-                half_b = 0.5 * float(np.hypot(*(self.rx_c - self.tx_c)))
                 delay_k = 2.0 * math.hypot(float(distance.mean()), half_b) / C
                 reach = [0.5 * C * (delay_k + sign * self.SIDE_WALL_COHERENT_S) for sign in (-1.0, 1.0)]
                 lo = max(self.SIDE_WALL_MIN_M, math.sqrt(max(reach[0] ** 2 - half_b ** 2, 0.0)))
@@ -1524,7 +1530,7 @@ class WallFusion:
                     except bistatic.GeometryError:
                         continue
                     ts.append(float((bistatic.robot_to_world(spec_r, poses[g]) - point) @ direction))
-                    zones.append(0.5 * math.sqrt(self.wavelength_m * max(float(np.hypot(*(spec_r - self.robot_c))), 0.1)))
+                    zones.append(float(self._half_fresnel_m(np.hypot(*(spec_r - self.robot_c)))))
                 if not ts:
                     continue
                 lo, hi = int(np.argmin(ts)), int(np.argmax(ts))
@@ -2176,8 +2182,8 @@ class WallFusion:
         # side wall's detections, and the hidden wall goes (after the gaps are bridged, which
         # index the walls as walls_in)
         absorbed = self._absorbed_by_side_walls(walls_in, wall_cls, side_walls)
-        for k, n_side in absorbed.items():
-            side_walls[n_side]["echoes"] = side_walls[n_side].get("echoes", 0) + int(walls_in[k]["members"].size)
+        taken_echoes = [sum(int(walls_in[k]["members"].size) for k, n in absorbed.items() if n == n_side)
+                        for n_side in range(len(side_walls))]
         for k, w in enumerate(walls_in):
             members = w["members"]
             resid = (pw[members] - w["centre"]) @ w["normal"]
@@ -2206,12 +2212,13 @@ class WallFusion:
         index.update({len(walls_in) + n: first_end + n for n in range(len(end_walls))})
         for c in corners:
             c.walls = tuple(index[k] for k in c.walls)
-        for source, found in (("end_wall", end_walls), ("side_wall", side_walls)):
-            for end_wall in found:  # fitted on the CSI alone (a side wall may have taken echoes)
+        for source, found, num_echoes in (("end_wall", end_walls, [0] * len(end_walls)),
+                                          ("side_wall", side_walls, taken_echoes)):
+            for end_wall, count in zip(found, num_echoes):  # fitted on the CSI alone
                 walls.append(MapWall(end_wall["centre"] + end_wall["t0"] * end_wall["direction"],
                                      end_wall["centre"] + end_wall["t1"] * end_wall["direction"],
                                      end_wall["normal"].copy(), CLASSES[LOS], end_wall["confidence"], end_wall["poses"],
-                                     end_wall.get("echoes", 0), 0.0, source=source))
+                                     count, 0.0, source=source))
         for cls in CLASSES:
             detections[cls] = np.array(detections[cls]).reshape(-1, 2)
             echoes[cls] = np.array(echoes[cls]).reshape(-1, 2)
@@ -2252,8 +2259,7 @@ class WallFusion:
                     if clear and np.hypot(*d) <= self.LINE_GAP_M:
                         normal = last.normal + w.normal
                         bridges.append(MapWall(a.copy(), b.copy(), normal / np.hypot(*normal), CLASSES[LOS],
-                                               0.5 * min(last.confidence, w.confidence), 0, 0, 0.0, inferred=True,
-                                               source="inferred"))
+                                               0.5 * min(last.confidence, w.confidence), 0, 0, 0.0, source="inferred"))
                 if hi > reach:
                     reach, last = hi, w
         return bridges
@@ -2310,7 +2316,7 @@ def plot_map(fused, png_path, title=None, truth=None, dpi=120):
         label = None if kind in labelled else \
             f"wall, {w.cls.replace('_', ' ')}" + (", found on the CSI" if kind[1] else "")
         labelled.add(kind)
-        ax.plot(xy[:, 0], xy[:, 1], styles.get(w.source, ":" if w.inferred else "-"), color=colours[w.cls],
+        ax.plot(xy[:, 0], xy[:, 1], styles.get(w.source, "-"), color=colours[w.cls],
                 lw=1.0 + 2.5 * w.confidence, label=label)
         if w.material and w.material != fused.stats.get("material"):  # the walls not like the rest
             mid = xy.mean(axis=0) + 0.15 * w.normal

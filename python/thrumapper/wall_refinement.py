@@ -581,7 +581,6 @@ class CsiWallRefiner:
                 noise[i] += energy * q.shape[1] / max(dims, 1)
         return scores, noise
 
-
     # -- a wall beside the track that JADE does not report -------------------------------
     def side_wall_scores(self, point_m, toward, offsets_m, groups):
         """How much of the CSI a wall parallel to a mapped one, across the track from it,
@@ -608,11 +607,8 @@ class CsiWallRefiner:
                 point_r = bistatic.world_to_robot(origin + float(d) * u, pose)
                 if (self.tx_c - point_r) @ normal_r <= 0 or (self.rx_c - point_r) @ normal_r <= 0:
                     continue  # the arrays are not in front of it
-                v = self._project_out((data.model.echo_csi(point_r, normal_r, self.material) * self._sys).ravel(), basis)
-                norm = float(np.vdot(v, v).real)
-                if norm <= 0:
-                    continue
-                scores[i] += float(np.sum(np.abs(residual @ v.conj()) ** 2)) / norm
+                echo = (data.model.echo_csi(point_r, normal_r, self.material) * self._sys).ravel()
+                scores[i] += self._explained(echo, basis, residual)
                 noise[i] += energy / max(dims, 1)
         return scores, noise, total
 
