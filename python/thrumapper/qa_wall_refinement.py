@@ -64,6 +64,23 @@ def written_survey(directory, sc, res, poses):
     return survey.read_survey(meta)
 
 
+def mapped_with(sc, res, **constants):
+    """The simulated survey mapped by thrumapper-map's chain at its true poses, with these
+    WallFusion class constants changed for the call (to show what a mechanism does)."""
+    fusion = importlib.import_module("gnuradio.thrumapper.wall_fusion").WallFusion  # the package's name is the block
+    saved = {name: getattr(fusion, name) for name in constants}
+    for name, value in constants.items():
+        setattr(fusion, name, value)
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            fused, _ = cli_map.map_survey(written_survey(tmp, sc, res, res.poses_true),
+                                          fusion_settings=wf_settings(correct_poses=False))
+    finally:
+        for name, value in saved.items():
+            setattr(fusion, name, value)
+    return fused
+
+
 def wall(face_y, tilt_deg=0.0, robot_side=1.0):
     """A wall dict (WallFusion's form) along x through (0, face_y), turned by tilt_deg."""
     t = math.radians(tilt_deg)
@@ -334,6 +351,104 @@ class qa_wall_refinement(gr_unittest.TestCase):
         self.assertLess(north_coverage(without), 0.8)
         alone = mapped(data["walls"][:1])
         self.assertEqual([w for w in alone.walls if w.source == "side_wall"], [], alone.walls)
+
+    def test_wall_extension_held_on_the_csi(self):
+        """The class rule extends a line-of-sight wall LINE_GAP_M (4 m) past its ends (a corridor
+        wall goes on where its echoes stop), and a wall behind that extension is hidden. Here a
+        brick wall (face y = -1.0, x = 4.5-9.5) ends freely, and a plasterboard wall 0.6 m
+        further out (face y = -1.6, x = -2-4) stands where its extension would be: the robot,
+        driven along x = 0-8.5 with the TX beam on that side, sees both. On the CSI:
+
+        - the echo of the brick wall's line (CsiWallRefiner.line_gain) is as strong beside the
+          brick wall where the map does not have it (the map's piece cut to x >= 6.5) as
+          beside the mapped piece, and under a tenth of that where no brick wall stands;
+        - the extension ends there, and the plasterboard wall is mapped as line of sight (the
+          truth); held to the full 4 m regardless of the CSI, it is classed hidden."""
+        wf = importlib.import_module("gnuradio.thrumapper.wall_fusion")  # the package's name is the block
+        data = scene_data("office_floor")
+        data["walls"] = [{"name": "brick", "segment": [[4.5, -1.1], [9.5, -1.1]], "material": "brick"},
+                         {"name": "board", "segment": [[-2.0, -1.675], [4.0, -1.675]], "material": "plasterboard"}]
+        for key in ("clutter", "doors"):
+            data.pop(key, None)
+        data["impairments"] = dict(data["impairments"], system_delay_known=True)
+        data["trajectory"] = {"waypoints": [[0.0, 0.0], [8.5, 0.0]], "step_m": 0.25}
+        data["frames_per_pose"] = 2
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+
+        # the line's echo, pose by pose, on the CSI the mapper sees (RX-calibrated, the direct
+        # path cancelled: thrumapper-map's chain up to the fusion)
+        from gnuradio.thrumapper import jade_pipeline, rx_calibration
+        with tempfile.TemporaryDirectory() as tmp:
+            read = written_survey(tmp, sc, res, res.poses_true)
+            work = rx_calibration.calibrated_survey(read, rx_calibration.calibrate_survey(read))
+            results = list(jade_pipeline.run_survey(work, cli_map.jade_settings(), read.system_delay_s,
+                                                    keep_csi=True))
+            refiner = CsiWallRefiner(RadarGeometry.from_survey(read), read.system_delay_s,
+                                     scene.MATERIAL_PRESETS["plasterboard"])
+        poses = np.array([r["pose"] for r in results], float)
+        for g, r in enumerate(results):
+            refiner.add(g, r["csi"], r.get("tx_weights"))
+        brick = {"centre": np.array([8.0, -1.0]), "normal": np.array([0.0, 1.0]), "direction": np.array([1.0, 0.0]),
+                 "t0": -1.5, "t1": 1.5}
+        board = {"centre": np.array([1.0, -1.6]), "normal": np.array([0.0, 1.0]), "direction": np.array([1.0, 0.0]),
+                 "t0": -3.0, "t1": 3.0}
+        refiner.set_map([brick, board], poses, [[] for _ in results], [False, False])
+
+        def gain_beside(x_m):  # at the pose whose specular point on the brick line is nearest x_m
+            spec = [bistatic.robot_to_world(bistatic.specular_path(
+                bistatic.world_to_robot(brick["centre"], p), bistatic.rotate(brick["normal"], -p[2]),
+                refiner.tx_c, refiner.rx_c)[2], p)[0] for p in poses]
+            return refiner.line_gain(int(np.argmin(np.abs(np.array(spec) - x_m))), brick, [0])
+
+        mapped = np.median([gain_beside(x) for x in (7.0, 7.5, 8.0)])
+        unmapped = np.median([gain_beside(x) for x in (5.0, 5.5, 6.0)])
+        nothing = np.median([gain_beside(x) for x in (2.0, 2.5, 3.0)])
+        self.assertGreater(unmapped, 0.5 * mapped, (mapped, unmapped))
+        self.assertLess(unmapped, 2.0 * mapped, (mapped, unmapped))
+        self.assertLess(nothing, 0.1 * mapped, (mapped, nothing))
+
+        def board_class(absent_ratio):
+            fused = mapped_with(sc, res, EXTENSION_ABSENT_RATIO=absent_ratio)
+            boards = [w for w in fused.walls if w.source == "echoes" and w.length_m > 3.0 and
+                      max(w.start_m[0], w.end_m[0]) < 4.5 and abs(0.5 * (w.start_m[1] + w.end_m[1]) + 1.6) < 0.15]
+            self.assertEqual(len(boards), 1, fused.walls)
+            return boards[0].cls
+
+        self.assertEqual(board_class(wf.WallFusion.EXTENSION_ABSENT_RATIO), "line_of_sight")
+        self.assertEqual(board_class(0.0), "hidden")
+
+    def test_skewed_side_wall_found_where_jade_reports_one(self):
+        """skewed_walls' first 6 m: the plasterboard walls skewed 18° to the left and 12° to the
+        right of the track are 30° apart, and where their echoes come within a fraction of a
+        nanosecond of each other JADE reports the left wall and not the right one. The side-wall
+        search, with hypotheses tilted up to 36° from the mapped wall, finds the right wall on
+        the CSI: its face (the centre line 7.5 cm nearer the robot) within 5 cm over the span
+        found, its direction within 3°. A search of parallel walls only finds nothing there."""
+        wf = importlib.import_module("gnuradio.thrumapper.wall_fusion")
+        data = scene_data("skewed_walls")
+        data["trajectory"] = {"waypoints": [[0.0, 0.0], [6.0, 0.0]], "step_m": 0.2}
+        data["frames_per_pose"] = 2
+        data.pop("clutter", None)
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+        (x0, y0), (x1, y1) = data["walls"][0]["segment"]  # skew_right_12deg
+        direction = np.array([x1 - x0, y1 - y0]) / math.hypot(x1 - x0, y1 - y0)
+        normal = np.array([-direction[1], direction[0]])  # toward the robot
+        face = np.array([x0, y0]) + 0.075 * normal
+
+        def side_walls(max_tilt_deg):
+            fused = mapped_with(sc, res, SIDE_WALL_MAX_TILT_DEG=max_tilt_deg)
+            return [w for w in fused.walls if w.source == "side_wall"]
+
+        found = side_walls(wf.WallFusion.SIDE_WALL_MAX_TILT_DEG)
+        self.assertEqual(len(found), 1, found)
+        w = found[0]
+        for end in (w.start_m, w.end_m):
+            self.assertLess(abs(float((end - face) @ normal)), 0.05, w)
+        self.assertGreater(abs(float(w.normal @ normal)), math.cos(math.radians(3.0)), w)
+        self.assertGreater(w.length_m, 1.0, w)
+        self.assertEqual(side_walls(0.0), [])
 
     def test_corridor_map_targets(self):
         """§4.4: the corridor scan past a room mapped through thrumapper-map's chain: the issue's

@@ -441,6 +441,14 @@ class WallFusion:
     #: classes: a line-of-sight wall seen from this many poses is extended by LINE_GAP_M past
     #: its ends when testing what is behind it
     EXTENSION_MIN_POSES = 5
+    #: ...but, with the CSI, only as far as the poses beside the extension hold its echo: it
+    #: ends where EXTENSION_ABSENT_POSES consecutive poses hold less than EXTENSION_ABSENT_RATIO
+    #: of the gain the wall has at the EXTENSION_REFERENCE_POSES poses nearest that end (a
+    #: corridor wall JADE did not report: 0.2-1.5; a brick wall's extension where none stands:
+    #: under 0.07; an open door: 0.03-0.11; docs/mapping.md)
+    EXTENSION_ABSENT_RATIO = 0.15
+    EXTENSION_ABSENT_POSES = 2
+    EXTENSION_REFERENCE_POSES = 6
     #: the adjustment's least-squares evaluations per solve, reweighting solves, and the
     #: Cauchy scale of the reweighting (normalised residuals)
     ADJUSTMENT_MAX_NFEV = 200
@@ -469,10 +477,11 @@ class WallFusion:
     END_WALL_STEP_M = 0.05
     END_WALL_MIN_BEARING_DEG = 25.0
     #: ...with the CSI of the poses within this reach of the end, and the line-of-sight walls
-    #: along the track (within this angle of it) this far to either side as its side walls
-    #: (at least one on each side)...
+    #: along the track (within this angle of it: a corridor's walls; skewed_walls' 12° wall,
+    #: taken for one at 15°, put a false end wall past the brick wall's free end) this far to
+    #: either side as its side walls (at least one on each side)...
     END_WALL_REACH_M = 5.0
-    END_WALL_SIDE_ANGLE_DEG = 15.0
+    END_WALL_SIDE_ANGLE_DEG = 8.0
     END_WALL_SIDE_M = 3.0
     #: ...and is mapped when its best distance explains this many times what white noise
     #: would, and this many times what the hypotheses at both ends of the search explain (the
@@ -489,6 +498,16 @@ class WallFusion:
     #: mapped walls leave of those poses' CSI (a corridor of one wall: 0.15 at the best
     #: offset; the office corridors' unreported walls: 0.20-0.89, docs/mapping.md)
     SIDE_WALL_MIN_POSES = 5
+    #: ...on stretches whose heading is within this of wall k (skewed_walls' 18° wall, mapped
+    #: at up to 21°, runs along the track; a track that turns has stretches that do not)
+    SIDE_WALL_ALONG_DEG = 25.0
+    #: ...tilted from parallel to wall k by up to SIDE_WALL_MAX_TILT_DEG in steps of
+    #: SIDE_WALL_TILT_STEP_DEG (0: parallel only)
+    SIDE_WALL_MAX_TILT_DEG = 36.0
+    SIDE_WALL_TILT_STEP_DEG = 4.0
+    #: ...a tilted one taken when it explains this share of what the mapped walls leave
+    #: (skewed_walls' partner: 0.84; the best tilted hypothesis where no wall stands: 0.31)
+    SIDE_WALL_TILTED_MIN_SHARE = 0.5
     SIDE_WALL_MIN_M = 0.4
     SIDE_WALL_MAX_M = 3.0
     SIDE_WALL_STEP_M = 0.025
@@ -543,6 +562,7 @@ class WallFusion:
         #: a wall_refinement.CsiWallRefiner when the CSI is given (enable_csi_refinement)
         self.refiner = None
         self._weak_blockers = None  # per echo, set by build_map
+        self._line_gains = {}  # _extension_on_csi's, by pose and line; reset by build_map
         self._wall_material_names = {}  # wall index: material (_estimate_materials), set by build_map
         self._tx_gains_db = {}  # _tx_gain_db's, by direction
         self.counts = {"messages": 0, "paths": 0, "skipped_nonfinite": 0, "skipped_early": 0, "skipped_far": 0,
@@ -1382,16 +1402,83 @@ class WallFusion:
             line_of = {}
             for n_line, members in enumerate(self._collinear_groups(walls)):
                 line_of.update({j: n_line for j in members})
+            checked = set()  # extensions held against the CSI in this call
+            first_classes = list(wall_cls)
             for j, k in enumerate(los):
                 members = state["walls"][k]["members"]
-                hit = self._legs_cross(*self._legs_from(state["poses"], state["group"][members]), state["pw"][members],
-                                       a, b)
-                hit[:, [i for i in range(len(los)) if line_of[i] == line_of[j]]] = False  # its own line
+                legs = self._legs_from(state["poses"], state["group"][members])
+                own_line = [i for i in range(len(los)) if line_of[i] == line_of[j]]
+                hit = self._legs_cross(*legs, state["pw"][members], a, b)
+                hit[:, own_line] = False
                 behind = np.any(hit, axis=1)
+                if np.mean(behind) > 0.5 and self._fits_on_csi:
+                    # what makes it hidden must stand there: each extension it is behind ends
+                    # where the CSI beside it holds no echo of its wall
+                    for i in set(np.flatnonzero(np.any(hit, axis=0)).tolist()) - checked:
+                        checked.add(i)
+                        if margins[i] > 0:
+                            same = [los[q] for q in range(len(los)) if line_of[q] == line_of[i]]
+                            lo, hi = self._extension_on_csi(state, los[i], same, first_classes)
+                            a[i] = walls[i]["centre"] + (walls[i]["t0"] - lo) * walls[i]["direction"]
+                            b[i] = walls[i]["centre"] + (walls[i]["t1"] + hi) * walls[i]["direction"]
+                    hit = self._legs_cross(*legs, state["pw"][members], a, b)
+                    hit[:, own_line] = False
+                    behind = np.any(hit, axis=1)
                 if np.mean(behind) > 0.5:
                     wall_cls[k] = HIDDEN
                     det_cls[members[behind]] = HIDDEN
         return det_cls, wall_cls
+
+    def _extension_on_csi(self, state, k, same_line, wall_cls):
+        """How far (lo, hi) line-of-sight wall k goes on past its two ends, up to LINE_GAP_M,
+        by its echo on the CSI of the poses whose specular point on its line lies beyond the
+        end: from the end outward, the extension stops at the first of
+        EXTENSION_ABSENT_POSES consecutive poses whose gain for the line's echo
+        (CsiWallRefiner.line_gain, the pieces `same_line` of that line left in the data) is
+        under EXTENSION_ABSENT_RATIO of the median gain at the wall's own
+        EXTENSION_REFERENCE_POSES poses nearest the end. A wall whose echo is in the data but
+        not reported (the coherent echoes of a corridor's two walls, a weak TX beam) goes on;
+        a wall that really ends (a brick wall beside an open stretch, an open door) does not.
+        Without a reference, or a pose beyond the end, the full LINE_GAP_M."""
+        poses, wall = state["poses"], state["walls"][k]
+        self._refiner_map(state, poses, wall_cls)
+        beside = []  # (t, g): where each pose's specular point lies along the line
+        for g in sorted(self.refiner.poses):
+            if g >= len(poses) or float((poses[g][:2] - wall["centre"]) @ wall["normal"]) <= 0:
+                continue
+            point_r, normal_r = self._robot_line(wall, poses[g])
+            try:
+                _, _, spec_r = bistatic.specular_path(point_r, normal_r, self.tx_c, self.rx_c)
+            except bistatic.GeometryError:
+                continue
+            beside.append((float((bistatic.robot_to_world(spec_r, poses[g]) - wall["centre"]) @ wall["direction"]), g))
+
+        def gain(g):
+            point_r, normal_r = self._robot_line(wall, poses[g])
+            key = (g, round(float(point_r @ normal_r) / self.FIT_REUSE_M),
+                   round(math.atan2(normal_r[1], normal_r[0]) / math.radians(self.FIT_REUSE_DEG)))
+            if key not in self._line_gains:
+                self._line_gains[key] = self.refiner.line_gain(g, wall, same_line)
+            return self._line_gains[key]
+
+        lengths = []
+        for end, sign in ((wall["t0"], -1.0), (wall["t1"], 1.0)):
+            own = sorted((abs(t - end), g) for t, g in beside if wall["t0"] <= t <= wall["t1"])
+            reference = [v for v in (gain(g) for _, g in own[:self.EXTENSION_REFERENCE_POSES]) if v is not None]
+            length = self.LINE_GAP_M
+            if reference:
+                floor = self.EXTENSION_ABSENT_RATIO * float(np.median(reference))
+                run = []
+                for d, g in sorted((sign * (t - end), g) for t, g in beside if 0 < sign * (t - end) <= self.LINE_GAP_M):
+                    value = gain(g)
+                    if value is None:
+                        continue
+                    run = run + [d] if value < floor else []
+                    if len(run) >= self.EXTENSION_ABSENT_POSES:
+                        length = run[0]
+                        break
+            lengths.append(length)
+        return lengths[0], lengths[1]
 
     def _end_walls(self, state, poses, wall_cls):
         """Walls across the track beyond its two ends, found on the CSI: the concave corners
@@ -1458,19 +1545,25 @@ class WallFusion:
         reports one of them, or a mixture of both at neither's angle (docs/mapping.md). The
         CSI fits then model one wall and not the other. Along each line-of-sight wall that
         runs with the track, on the stretches of at least SIDE_WALL_MIN_POSES consecutive
-        poses that see no mapped wall across the track, a parallel wall across the track is
-        hypothesised every SIDE_WALL_STEP_M and scored on those poses' CSI with everything
-        mapped projected out (CsiWallRefiner.side_wall_scores), only where its echo would
-        come within SIDE_WALL_COHERENT_S of wall k's, and taken at a peak inside the search
-        that explains END_WALL_SIGNIFICANCE times what white noise would and
-        SIDE_WALL_MIN_SHARE of what the mapped walls leave. Returns dicts: centre, normal,
-        direction, t0, t1 (world), corners (none), poses, groups, confidence."""
+        poses that see no mapped wall across the track, a wall across the track, parallel to
+        wall k or tilted from it by up to SIDE_WALL_MAX_TILT_DEG, is hypothesised every
+        SIDE_WALL_STEP_M and SIDE_WALL_TILT_STEP_DEG and scored on those poses' CSI with
+        everything mapped projected out (CsiWallRefiner.side_wall_scores), only where its echo
+        would come within SIDE_WALL_COHERENT_S of wall k's at the stretch's middle pose, and
+        taken at a peak inside the search (in distance and in tilt) that explains
+        END_WALL_SIGNIFICANCE times what white noise would and SIDE_WALL_MIN_SHARE of what the
+        mapped walls leave. Returns dicts: centre, normal, direction, t0, t1 (world), corners
+        (none), poses, groups, confidence."""
         walls = state["walls"]
         if len(poses) < self.SIDE_WALL_MIN_POSES or not walls:
             return []
         self._refiner_map(state, poses, wall_cls)
-        sin_along = math.sin(math.radians(self.END_WALL_SIDE_ANGLE_DEG))
-        cos_facing = math.cos(math.radians(self.END_WALL_SIDE_ANGLE_DEG))
+        sin_along = math.sin(math.radians(self.SIDE_WALL_ALONG_DEG))
+        cos_facing = math.cos(math.radians(self.SIDE_WALL_ALONG_DEG))
+        # walls across the track: facing back at wall k, up to the largest tilt searched
+        cos_across = math.cos(math.radians(self.SIDE_WALL_ALONG_DEG + self.SIDE_WALL_MAX_TILT_DEG))
+        tilts_deg = np.arange(-self.SIDE_WALL_MAX_TILT_DEG, self.SIDE_WALL_MAX_TILT_DEG + 1e-9,
+                              self.SIDE_WALL_TILT_STEP_DEG)
         los = [k for k, c in enumerate(wall_cls) if c == LOS]
         group = state["group"]
         robot = np.array([bistatic.robot_to_world(self.robot_c, p) for p in poses])
@@ -1481,8 +1574,8 @@ class WallFusion:
             w = walls[k]
             if np.unique(group[w["members"]]).size < self.EXTENSION_MIN_POSES:
                 continue
-            across = [j for j in los if float(walls[j]["normal"] @ w["normal"]) < -cos_facing]
-            taken = [f for f in found if float(f["normal"] @ -w["normal"]) > cos_facing]
+            across = [j for j in los if float(walls[j]["normal"] @ w["normal"]) < -cos_across]
+            taken = [f for f in found if float(f["normal"] @ -w["normal"]) > cos_across]
             free = [g for g in sorted(self.refiner.poses)
                     if g < len(poses) and self.refiner.sees(g, k)
                     and not any(self.refiner.sees(g, j) for j in across)
@@ -1510,17 +1603,49 @@ class WallFusion:
                 reach = [0.5 * C * (delay_k + sign * self.SIDE_WALL_COHERENT_S) for sign in (-1.0, 1.0)]
                 lo = max(self.SIDE_WALL_MIN_M, math.sqrt(max(reach[0] ** 2 - half_b ** 2, 0.0)))
                 hi = min(self.SIDE_WALL_MAX_M, math.sqrt(reach[1] ** 2 - half_b ** 2))
-                offsets = distance.mean() + np.arange(lo, hi + 1e-9, self.SIDE_WALL_STEP_M)
-                if offsets.size < 3:
+                ranges = np.arange(lo, hi + 1e-9, self.SIDE_WALL_STEP_M)
+                if ranges.size < 3:
                     continue
-                scores, noise, residual = self.refiner.side_wall_scores(w["centre"], w["normal"], offsets, run)
-                best = int(np.argmax(scores))
-                if not (0 < best < offsets.size - 1 and scores[best] >= self.END_WALL_SIGNIFICANCE * noise[best] and
-                        scores[best] >= self.SIDE_WALL_MIN_SHARE * residual):
+                # the hypotheses cross the normal of wall k through the stretch's middle pose,
+                # tilted by up to SIDE_WALL_MAX_TILT_DEG (a partner need not be parallel: the
+                # two skewed walls of skewed_walls are 30 degrees apart), within the range
+                # window measured across from the track's mean distance to wall k
+                mid = robot[run[len(run) // 2]]
+                foot = mid - float((mid - w["centre"]) @ w["normal"]) * w["normal"]
+                mid_distance = float(distance.mean())
+                grid = []
+                for tilt in tilts_deg:
+                    offsets = mid_distance + ranges / math.cos(math.radians(tilt))
+                    scores, noise, residual = self.refiner.side_wall_scores(foot, w["normal"], offsets, run,
+                                                                            math.radians(tilt))
+                    grid.append((scores, noise, offsets))
+                scores_t = np.array([g[0] for g in grid])
+
+                def accepted(t, i, share):
+                    scores, noise, offsets = grid[t]
+                    return (0 < i < offsets.size - 1 and (tilts_deg.size == 1 or 0 < t < tilts_deg.size - 1) and
+                            scores[i] >= self.END_WALL_SIGNIFICANCE * noise[i] and scores[i] >= share * residual)
+
+                # a tilted partner must stand out more than a parallel one: far more hypotheses
+                # are tried (a one-sided scene's best tilted nothing explains 31 %, its best
+                # parallel nothing 16 %), else the parallel hypothesis is judged alone
+                t_best, best = np.unravel_index(int(np.argmax(scores_t)), scores_t.shape)
+                tilted = bool(tilts_deg[t_best] != 0)
+                if tilted and not accepted(t_best, best, self.SIDE_WALL_TILTED_MIN_SHARE):
+                    tilted = False
+                    t_best = int(np.argmin(np.abs(tilts_deg)))
+                    best = int(np.argmax(scores_t[t_best]))
+                    if tilts_deg[t_best] != 0:
+                        continue
+                if not accepted(t_best, best, self.SIDE_WALL_MIN_SHARE):
                     continue
-                d = offsets[best] + _peak_offset(*scores[best - 1:best + 2]) * self.SIDE_WALL_STEP_M
-                point = w["centre"] + d * w["normal"]
-                normal = -w["normal"]
+                scores, noise, offsets = grid[t_best]
+                tilt = float(tilts_deg[t_best])
+                if tilted:  # the maximum over the whole grid: refined between the tilts too
+                    tilt += _peak_offset(*scores_t[t_best - 1:t_best + 2, best]) * self.SIDE_WALL_TILT_STEP_DEG
+                d = offsets[best] + _peak_offset(*scores[best - 1:best + 2]) * (offsets[1] - offsets[0])
+                point = foot + d * w["normal"]
+                normal = -bistatic.rotate(w["normal"], math.radians(tilt))
                 direction = np.array([-normal[1], normal[0]])
                 ts, zones = [], []
                 for g in run:
@@ -1687,6 +1812,7 @@ class WallFusion:
         self._phase_s = {}
         self._odometry_fit = None
         self._fit_cache = {}
+        self._line_gains = {}  # _extension_on_csi's, by pose and line
         s = self.settings
         odometry = np.array([g.pose for g in self.groups]).reshape(-1, 3)
         frame_indices = [g.frame_index for g in self.groups]

@@ -203,18 +203,20 @@ class CsiWallRefiner:
         return crossed
 
     def _basis(self, g, exclude, unexplained_paths=True):
-        """Orthonormal columns of everything modelled at group g but wall `exclude`: the other
-        walls' echoes, the JADE paths no wall explains (far field; without them when not
-        unexplained_paths), the cancelled direct path."""
+        """Orthonormal columns of everything modelled at group g but wall `exclude` (an index,
+        a collection of them, or None): the other walls' echoes, the JADE paths no wall
+        explains (far field; without them when not unexplained_paths), the cancelled direct
+        path."""
         s = self.settings
         data, pose = self.poses[g], self.world_poses[g]
+        excluded = set(exclude) if isinstance(exclude, (set, frozenset, list, tuple)) else {exclude}
         cols, explained = [], []
         for j, w in enumerate(self.walls):
             e = self._echo(data, w, pose, self._crossed_for(j))
             if e is None:
                 continue
             explained.append((e[1], e[2]))
-            if j != exclude:
+            if j not in excluded:
                 cols.append(e[0])
         for aoa, delay in self.group_paths[g] if unexplained_paths and g < len(self.group_paths) else ():
             near = any(abs(math.remainder(aoa - a, 2.0 * math.pi)) < math.radians(s.explained_angle_deg) and
@@ -307,6 +309,33 @@ class CsiWallRefiner:
         crossing = crossed(spec, pose)
         indices = [j for j, w in enumerate(self.walls) if any(w is c for c in crossing)]
         return {"gain": float(np.sqrt(np.mean(np.abs(gains) ** 2))), "predicted": predicted, "crossed": indices}
+
+    def line_gain(self, g, wall, exclude=()):
+        """How strongly group g's CSI holds the echo of a wall along `wall`'s line (a wall
+        dict, world; its extent ignored): the RMS over the frames of the least-squares gain of
+        that echo, the mapped walls `exclude` (indices: the pieces of that line) left in and
+        everything else mapped, and the cancelled direct path, projected out (not JADE's
+        other paths: where the estimator did not report a wall they may be its echo, mixed).
+        The model has the TX weights and the geometry in it, so along one wall the gain is
+        the wall's reflection over the model's times the radar's gain, whatever the pose: a
+        wall that goes on past its mapped end answers there about as strongly as on its
+        mapped part, one that ends does not answer. None when g has no CSI or does not face
+        the line."""
+        if g not in self.poses or g >= len(self.world_poses):
+            return None
+        unbounded = dict(wall, t0=-math.inf, t1=math.inf)
+        data = self.poses[g]
+        e = self._echo(data, unbounded, self.world_poses[g], lambda spec, pose: [])
+        if e is None:
+            return None
+        basis = self._basis(g, exclude, unexplained_paths=False)
+        v = self._project_out(e[0], basis)
+        energy = float(np.vdot(v, v).real)
+        if not energy > 0:
+            return None
+        rows = self._project_out(data.rows.T, basis).T
+        gains = rows @ v.conj() / energy
+        return float(np.sqrt(np.mean(np.abs(gains) ** 2)))
 
     def material_shift(self, k, material, max_groups=6):
         """How far wall k moves along its normal when its echo is modelled with `material` (a
@@ -582,13 +611,13 @@ class CsiWallRefiner:
         return scores, noise
 
     # -- a wall beside the track that JADE does not report -------------------------------
-    def side_wall_scores(self, point_m, toward, offsets_m, groups):
+    def side_wall_scores(self, point_m, toward, offsets_m, groups, tilt_rad=0.0):
         """How much of the CSI a wall parallel to a mapped one, across the track from it,
         explains, at each offset.
 
         The hypothesis at offset d: a wall through point_m + d·toward (world; toward, unit,
-        points from the mapped wall across the track) facing back along -toward, its own
-        specular echo with a free complex gain per frame. Per group, everything modelled
+        points from the mapped wall across the track) facing back along -toward turned by
+        tilt_rad, its own specular echo with a free complex gain per frame. Per group, everything modelled
         there (the mapped walls' echoes, the cancelled direct path; not JADE's other paths,
         which are where the estimator put this wall's echo mixed with the mapped one's) is
         projected out of the data and of the hypothesis first.
@@ -600,9 +629,10 @@ class CsiWallRefiner:
         scores = np.zeros(len(offsets_m))
         noise = np.zeros(len(offsets_m))
         total = 0.0
+        facing = -bistatic.rotate(u, tilt_rad)
         for g, data, pose, basis, residual, energy, dims in self._residuals(groups):
             total += energy
-            normal_r = bistatic.rotate(-u, -pose[2])
+            normal_r = bistatic.rotate(facing, -pose[2])
             for i, d in enumerate(offsets_m):
                 point_r = bistatic.world_to_robot(origin + float(d) * u, pose)
                 if (self.tx_c - point_r) @ normal_r <= 0 or (self.rx_c - point_r) @ normal_r <= 0:
