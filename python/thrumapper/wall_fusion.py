@@ -1137,7 +1137,46 @@ class WallFusion:
         for k, w in enumerate(walls):
             if votes[k, 1] < 0.5 * votes[k, 0]:
                 unconfirmed[w["members"]] = True
+        # twins: two walls facing the same way, each within TWIN_M of the other's line where
+        # they overlap, are one wall's echoes mapped twice (JADE's mixed echoes of two walls
+        # of one delay put a piece beside the real one, which then hides it); at the poses
+        # that see both, the CSI keeps the one whose echo explains more of it
+        for a, b in self._twins(walls):
+            shared = [g for g in sorted(self.refiner.poses)
+                      if g < len(poses) and self.refiner.sees(g, a) and self.refiner.sees(g, b)]
+            if not shared:
+                continue
+            scores = np.sum([self.refiner.twin_scores(g, a, b) for g in shared], axis=0)
+            loser = walls[b if scores[0] >= scores[1] else a]["members"]
+            unconfirmed[loser[np.isin(group[loser], shared)]] = True
         return unconfirmed, weak
+
+    #: twins (_twins): walls within this of each other's line where they overlap, by at least
+    #: TWIN_OVERLAP_M, and within TWIN_DEG of facing the same way
+    TWIN_M = 0.5
+    TWIN_OVERLAP_M = 0.5
+    TWIN_DEG = 15.0
+
+    def _twins(self, walls):
+        """Pairs (a, b) of walls that overlap by TWIN_OVERLAP_M along a, face the same way
+        within TWIN_DEG, and lie within TWIN_M of each other's line at both ends of the
+        overlap."""
+        cos_twin = math.cos(math.radians(self.TWIN_DEG))
+        pairs = []
+        for a, wa in enumerate(walls):
+            for b in range(a + 1, len(walls)):
+                wb = walls[b]
+                if float(wa["normal"] @ wb["normal"]) < cos_twin:
+                    continue
+                ends_b = sorted(float((wb["centre"] + t * wb["direction"] - wa["centre"]) @ wa["direction"])
+                                for t in (wb["t0"], wb["t1"]))
+                lo, hi = max(wa["t0"], ends_b[0]), min(wa["t1"], ends_b[1])
+                if hi - lo < self.TWIN_OVERLAP_M:
+                    continue
+                ends_a = [wa["centre"] + t * wa["direction"] for t in (lo, hi)]
+                if all(abs(float((p - wb["centre"]) @ wb["normal"])) < self.TWIN_M for p in ends_a):
+                    pairs.append((a, b))
+        return pairs
 
     def _confirm_thin_walls(self, det, state, poses, shifts):
         """Walls seen from fewer poses than min_wall_poses (a survey of one or a few poses:

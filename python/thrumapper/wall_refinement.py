@@ -459,6 +459,18 @@ class CsiWallRefiner:
             held.append(e is None or (share >= self.CONFIRM_SHARE * left and share >= self.CONFIRM_FLOOR * total))
         return confirmed, held
 
+    def twin_scores(self, g, a, b):
+        """(J_a, J_b): how much of group g's CSI walls a and b each explain alone, everything
+        else modelled there (but neither of them) projected out; 0 for one g does not see."""
+        data, pose = self.poses[g], self.world_poses[g]
+        basis = self._basis(g, {a, b})
+        rows = self._project_out(data.rows.T, basis).T
+        out = []
+        for k in (a, b):
+            e = self._echo(data, self.walls[k], pose, self._crossed_for(k))
+            out.append(0.0 if e is None else self._explained(e[0], basis, rows))
+        return out
+
     #: a candidate wall is confirmed when its echo explains this share of what the walls
     #: confirmed before it leave of a pose's CSI...
     CONFIRM_SHARE = 0.1
