@@ -1652,13 +1652,10 @@ class WallFusion:
                 mid = robot[run[len(run) // 2]]
                 foot = mid - float((mid - w["centre"]) @ w["normal"]) * w["normal"]
                 mid_distance = float(distance.mean())
-                grid = []
-                for tilt in tilts_deg:
-                    offsets = mid_distance + ranges / math.cos(math.radians(tilt))
-                    scores, noise, residual = self.refiner.side_wall_scores(foot, w["normal"], offsets, run,
-                                                                            math.radians(tilt))
-                    grid.append((scores, noise, offsets))
-                scores_t = np.array([g[0] for g in grid])
+                offsets_t = mid_distance + ranges[None, :] / np.cos(np.radians(tilts_deg))[:, None]
+                scores_t, noise_t, residual = self.refiner.side_wall_scores(foot, w["normal"], offsets_t, run,
+                                                                            np.radians(tilts_deg))
+                grid = list(zip(scores_t, noise_t, offsets_t))
 
                 def accepted(t, i, share):
                     scores, noise, offsets = grid[t]

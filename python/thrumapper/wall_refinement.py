@@ -623,35 +623,39 @@ class CsiWallRefiner:
         return scores, noise
 
     # -- a wall beside the track that JADE does not report -------------------------------
-    def side_wall_scores(self, point_m, toward, offsets_m, groups, tilt_rad=0.0):
-        """How much of the CSI a wall parallel to a mapped one, across the track from it,
-        explains, at each offset.
+    def side_wall_scores(self, point_m, toward, offsets_m, groups, tilts_rad=(0.0,)):
+        """How much of the CSI a wall across the track from a mapped one explains, at each
+        tilt and offset.
 
-        The hypothesis at offset d: a wall through point_m + d·toward (world; toward, unit,
-        points from the mapped wall across the track) facing back along -toward turned by
-        tilt_rad, its own specular echo with a free complex gain per frame. Per group, everything modelled
-        there (the mapped walls' echoes, the cancelled direct path; not JADE's other paths,
-        which are where the estimator put this wall's echo mixed with the mapped one's) is
-        projected out of the data and of the hypothesis first.
+        The hypothesis at tilt t and offset d: a wall through point_m + d·toward (world;
+        toward, unit, points from the mapped wall across the track) facing back along -toward
+        turned by t (0: parallel to the mapped wall), its own specular echo with a free
+        complex gain per frame. Per group, everything modelled there (the mapped walls' echoes,
+        the cancelled direct path; not JADE's other paths, which are where the estimator put
+        this wall's echo mixed with the mapped one's) is projected out of the data and of the
+        hypothesis first, once for all the hypotheses.
 
-        Returns (J (D,), noise (D,), residual energy): J and noise as end_wall_scores, and
-        the energy of the data with everything mapped projected out, summed over the groups."""
+        offsets_m: (D,) for every tilt, or (T, D), one row per tilt. Returns (J (T, D), noise
+        (T, D), residual energy): J and noise as end_wall_scores, and the energy of the data
+        with everything mapped projected out, summed over the groups."""
         u = np.asarray(toward, float) / np.hypot(*toward)
         origin = np.asarray(point_m, float)
-        scores = np.zeros(len(offsets_m))
-        noise = np.zeros(len(offsets_m))
+        tilts = np.atleast_1d(np.asarray(tilts_rad, float))
+        offsets = np.broadcast_to(np.asarray(offsets_m, float), (tilts.size, np.shape(offsets_m)[-1]))
+        scores = np.zeros(offsets.shape)
+        noise = np.zeros(offsets.shape)
         total = 0.0
-        facing = -bistatic.rotate(u, tilt_rad)
         for g, data, pose, basis, residual, energy, dims in self._residuals(groups):
             total += energy
-            normal_r = bistatic.rotate(facing, -pose[2])
-            for i, d in enumerate(offsets_m):
-                point_r = bistatic.world_to_robot(origin + float(d) * u, pose)
-                if (self.tx_c - point_r) @ normal_r <= 0 or (self.rx_c - point_r) @ normal_r <= 0:
-                    continue  # the arrays are not in front of it
-                echo = (data.model.echo_csi(point_r, normal_r, self.material) * self._sys).ravel()
-                scores[i] += self._explained(echo, basis, residual)
-                noise[i] += energy / max(dims, 1)
+            for t, tilt in enumerate(tilts):
+                normal_r = bistatic.rotate(-bistatic.rotate(u, float(tilt)), -pose[2])
+                for i, d in enumerate(offsets[t]):
+                    point_r = bistatic.world_to_robot(origin + float(d) * u, pose)
+                    if (self.tx_c - point_r) @ normal_r <= 0 or (self.rx_c - point_r) @ normal_r <= 0:
+                        continue  # the arrays are not in front of it
+                    echo = (data.model.echo_csi(point_r, normal_r, self.material) * self._sys).ravel()
+                    scores[t, i] += self._explained(echo, basis, residual)
+                    noise[t, i] += energy / max(dims, 1)
         return scores, noise, total
 
 
