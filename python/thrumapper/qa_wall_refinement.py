@@ -401,6 +401,8 @@ class qa_wall_refinement(gr_unittest.TestCase):
                 refiner.tx_c, refiner.rx_c)[2], p)[0] for p in poses]
             return refiner.line_gain(int(np.argmin(np.abs(np.array(spec) - x_m))), brick, [0])
 
+        self.assertIsNone(refiner.line_gain(len(results) + 5, brick))  # no such pose
+        self.assertIsNone(refiner.line_gain(0, dict(brick, normal=-brick["normal"])))  # the robot behind it
         mapped = np.median([gain_beside(x) for x in (7.0, 7.5, 8.0)])
         unmapped = np.median([gain_beside(x) for x in (5.0, 5.5, 6.0)])
         nothing = np.median([gain_beside(x) for x in (2.0, 2.5, 3.0)])
