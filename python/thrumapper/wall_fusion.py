@@ -1421,7 +1421,10 @@ class WallFusion:
 
     def _classify(self, state):
         """Classes by order along the ray: an echo whose legs cross another wall (mapped, or a
-        nearer echo's face at the same pose) is hidden; a wall takes its echoes' majority."""
+        nearer echo's face at the same pose) is hidden; a wall takes its echoes' majority.
+        Then a line-of-sight wall behind the extension of another is hidden, the extension
+        held against the CSI where there is one (_extension_on_csi, which hands the refiner
+        this map: callers hand it theirs again before they use it)."""
         labels, crossings, blocked = state["labels"], state["crossings"], state["blocked"]
         det_cls = np.array([HIDDEN if (crossings[i] or blocked[i]) else LOS for i in range(labels.size)])
         wall_cls = []
