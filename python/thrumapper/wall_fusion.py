@@ -1496,6 +1496,8 @@ class WallFusion:
             beside.append((float((bistatic.robot_to_world(spec_r, poses[g]) - wall["centre"]) @ wall["direction"]), g))
 
         def gain(g):
+            # reused while the line stays within FIT_REUSE_M and FIT_REUSE_DEG in this pose's
+            # view, as the fits are (_fit_echo): between the rounds the map moves by centimetres
             point_r, normal_r = self._robot_line(wall, poses[g])
             key = (g, round(float(point_r @ normal_r) / self.FIT_REUSE_M),
                    round(math.atan2(normal_r[1], normal_r[0]) / math.radians(self.FIT_REUSE_DEG)))
