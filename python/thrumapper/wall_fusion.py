@@ -489,6 +489,8 @@ class WallFusion:
     #: above them)
     END_WALL_SIGNIFICANCE = 10.0
     END_WALL_RISE = 1.2
+    #: ...and, beyond an axial landmark's end of the track, within this of the landmark
+    AXIAL_END_WINDOW_M = 0.5
     #: side walls (_side_walls): across the track from a line-of-sight wall along it, where
     #: at least SIDE_WALL_MIN_POSES consecutive poses see no wall on that side, a parallel
     #: wall is searched for in steps of SIDE_WALL_STEP_M, from SIDE_WALL_MIN_M to
@@ -1524,7 +1526,7 @@ class WallFusion:
             lengths.append(length)
         return lengths[0], lengths[1]
 
-    def _end_walls(self, state, poses, wall_cls):
+    def _end_walls(self, state, poses, wall_cls, axial=()):
         """Walls across the track beyond its two ends, found on the CSI: the concave corners
         where a corridor's walls meet its end wall are retro-reflectors, but their echoes
         arrive near the TX null, within a resolution cell of each other and of the end
@@ -1533,7 +1535,14 @@ class WallFusion:
         walls) are scored on the CSI of the poses near it (CsiWallRefiner.end_wall_scores).
         Returns dicts: centre, normal, direction, t0, t1 (world), corners [(position (2,),
         side wall index)], poses, confidence (0.5 at END_WALL_SIGNIFICANCE times what white
-        noise would explain, toward 0.9 as it stands out further)."""
+        noise would explain, toward 0.9 as it stands out further).
+
+        Where an axial landmark (_axial_landmarks: a wall across the track ranged on every
+        pose's CSI, `axial`) lies beyond an end, that end's hypotheses are the distances
+        within AXIAL_END_WINDOW_M of it instead, however far off the axis the corners are:
+        the landmark says where a wall stands across the corridor, the exact echo model
+        where its face is (the landmark's range is a beamformed peak, the slab's group delay
+        in it: 0.17 m short on the office's plasterboard end wall)."""
         if len(poses) < 2:
             return []
         self._refiner_map(state, poses, wall_cls)
@@ -1561,6 +1570,11 @@ class WallFusion:
                 continue
             far_m = max(offsets) / math.tan(math.radians(self.END_WALL_MIN_BEARING_DEG))
             distances = np.arange(self.END_WALL_MIN_M, far_m + 1e-9, self.END_WALL_STEP_M)
+            landmark = self._axial_distance(axial, sign, poses, end)
+            near_landmark = landmark is not None and landmark > far_m
+            if near_landmark:
+                distances = np.arange(landmark - self.AXIAL_END_WINDOW_M, landmark + self.AXIAL_END_WINDOW_M + 1e-9,
+                                      self.END_WALL_STEP_M)
             if distances.size < 3:
                 continue
             along = (poses[:, :2] - origin) @ u
@@ -1568,8 +1582,10 @@ class WallFusion:
             side_walls = [state["walls"][k] for k in sides]
             scores, noise = self.refiner.end_wall_scores(origin, u, distances, groups, side_walls)
             best = int(np.argmax(scores))
+            # (near a landmark the wall is known to stand: within a resolution cell of it the
+            # hypotheses differ too little for the rise test, which is for the wide search)
             if not (0 < best < distances.size - 1 and scores[best] >= self.END_WALL_SIGNIFICANCE * noise[best] and
-                    scores[best] >= self.END_WALL_RISE * max(scores[0], scores[-1])):
+                    (near_landmark or scores[best] >= self.END_WALL_RISE * max(scores[0], scores[-1]))):
                 continue
             d = distances[best] + _peak_offset(*scores[best - 1:best + 2]) * self.END_WALL_STEP_M
             point = origin + d * u
@@ -1580,6 +1596,21 @@ class WallFusion:
             found.append({"centre": point, "normal": -u, "direction": lateral, "t0": min(ts), "t1": max(ts),
                           "corners": corners, "poses": len(groups), "confidence": float(0.9 - 0.4 / max(ratio, 1.0))})
         return found
+
+    def _axial_distance(self, axial, sign, poses, end):
+        """How far beyond the track's end `end` (its last pose, sign +1, or first, -1) the
+        axial landmark of that direction lies from the robot's centre, along its axis: the
+        median over its ranges of where each puts the wall, in the final poses. None when
+        there is no such landmark."""
+        for a in axial:
+            if a["sign"] != sign:
+                continue
+            u = sign * np.array([math.cos(poses[end][2]), math.sin(poses[end][2])])
+            origin = bistatic.robot_to_world(self.robot_c, poses[end])
+            faces = [float((bistatic.robot_to_world(self.robot_c + np.array([sign * d, 0.0]), poses[g]) - origin) @ u)
+                     for g, d in a["ranges"]]
+            return float(np.median(faces))
+        return None
 
     def _side_walls(self, state, poses, wall_cls):
         """Walls across the track from a line-of-sight wall, found on the CSI where JADE does
@@ -1907,13 +1938,13 @@ class WallFusion:
         poses = odometry.copy()
         state, shifts, ghosts = refine(poses, shifts, ghosts)
         corrected = False
+        axial = []  # walls across the track ranged on the CSI (_axial_landmarks)
         if s.correct_poses and len(self.groups) >= 3:
             if self.SEQUENTIAL_PASS:
                 poses = self._timed("pose correction", self._sequential_poses, det, odometry, shifts, ghosts)
             # mapping and adjustment alternate until the poses settle: each map associates
             # more echoes with the walls than the last (a drifting odometry bends the first
             # map's walls, and the echoes off the bend are nobody's)
-            axial = []
             for rounds in range(1, self.ADJUSTMENT_ROUNDS + 1):
                 state, shifts, ghosts = refine(poses, shifts, ghosts)
                 det_cls, wall_cls = self._classify(state)
@@ -1937,7 +1968,8 @@ class WallFusion:
             state, shifts, ghosts = refine(poses, shifts, ghosts)
             corrected = True
         det_cls, wall_cls = self._classify(state)
-        end_walls = self._timed("end walls", self._end_walls, state, poses, wall_cls) if self._fits_on_csi else []
+        end_walls = self._timed("end walls", self._end_walls, state, poses, wall_cls, axial) \
+            if self._fits_on_csi else []
         side_walls = self._timed("side walls", self._side_walls, state, poses, wall_cls) \
             if self._fits_on_csi and self.settings.side_walls else []
         self._wall_material_names = {}
