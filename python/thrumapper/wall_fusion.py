@@ -1634,7 +1634,6 @@ class WallFusion:
             return []
         self._refiner_map(state, poses, wall_cls)
         sin_along = math.sin(math.radians(self.SIDE_WALL_ALONG_DEG))
-        cos_facing = math.cos(math.radians(self.SIDE_WALL_ALONG_DEG))
         # walls across the track: facing back at wall k, up to the largest tilt searched
         cos_across = math.cos(math.radians(self.SIDE_WALL_ALONG_DEG + self.SIDE_WALL_MAX_TILT_DEG))
         tilts_deg = np.arange(-self.SIDE_WALL_MAX_TILT_DEG, self.SIDE_WALL_MAX_TILT_DEG + 1e-9,

@@ -296,11 +296,10 @@ class CsiWallRefiner:
         if e is None:
             return None
         basis = self._basis(g, k)
-        v = self._project_out(e[0], basis)
-        energy = float(np.vdot(v, v).real)
-        if not energy > 0:
+        fitted = self._gain(data, e[0], basis)
+        if fitted is None:
             return None
-        gains = data.rows @ v.conj() / energy
+        gain, v, energy = fitted
         predicted = {}
         for name, material in materials.items():
             m = self._echo(data, wall, pose, crossed, material)[0]
@@ -308,7 +307,18 @@ class CsiWallRefiner:
         spec = self._pivot(wall, pose)
         crossing = crossed(spec, pose)
         indices = [j for j, w in enumerate(self.walls) if any(w is c for c in crossing)]
-        return {"gain": float(np.sqrt(np.mean(np.abs(gains) ** 2))), "predicted": predicted, "crossed": indices}
+        return {"gain": gain, "predicted": predicted, "crossed": indices}
+
+    def _gain(self, data, echo, basis):
+        """(RMS over the frames of the least-squares gain of `echo` in the data, the echo with
+        `basis` projected out, its energy), or None when nothing of it is left: with the
+        echo orthogonal to the basis, the data need not be projected too."""
+        v = self._project_out(echo, basis)
+        energy = float(np.vdot(v, v).real)
+        if not energy > 0:
+            return None
+        gains = data.rows @ v.conj() / energy
+        return float(np.sqrt(np.mean(np.abs(gains) ** 2))), v, energy
 
     def line_gain(self, g, wall, exclude=()):
         """How strongly group g's CSI holds the echo of a wall along `wall`'s line (a wall
@@ -328,14 +338,8 @@ class CsiWallRefiner:
         e = self._echo(data, unbounded, self.world_poses[g], lambda spec, pose: [])
         if e is None:
             return None
-        basis = self._basis(g, exclude, unexplained_paths=False)
-        v = self._project_out(e[0], basis)
-        energy = float(np.vdot(v, v).real)
-        if not energy > 0:
-            return None
-        rows = self._project_out(data.rows.T, basis).T
-        gains = rows @ v.conj() / energy
-        return float(np.sqrt(np.mean(np.abs(gains) ** 2)))
+        fitted = self._gain(data, e[0], self._basis(g, exclude, unexplained_paths=False))
+        return None if fitted is None else fitted[0]
 
     def material_shift(self, k, material, max_groups=6):
         """How far wall k moves along its normal when its echo is modelled with `material` (a
