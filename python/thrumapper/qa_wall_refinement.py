@@ -420,6 +420,45 @@ class qa_wall_refinement(gr_unittest.TestCase):
         self.assertEqual(board_class(wf.WallFusion.EXTENSION_ABSENT_RATIO), "line_of_sight")
         self.assertEqual(board_class(0.0), "hidden")
 
+    def test_wall_seen_through_an_open_door_is_line_of_sight_there(self):
+        """A corridor wall (plasterboard, face y = -1.0) with an opening at x = 3.5-5.7 m (a
+        double door open), and a brick wall 2 m behind it (face y = -3.0), surveyed along
+        x = 0-8 m with the TX beam on that side. Through the opening the brick wall is in plain
+        view: the robot's rays to it cross no wall, and the CSI holds next to nothing of the
+        corridor wall's echo there (_seen_through_opening). The brick wall is drawn hidden,
+        with a line-of-sight piece in the opening and line-of-sight detections there only;
+        with the split turned off (CLASS_SPLIT_MIN_POSES = 0) it is hidden from end to end."""
+        data = scene_data("office_floor")
+        data["walls"] = [{"name": "corridor west", "segment": [[-2.0, -1.075], [3.5, -1.075]], "material": "plasterboard"},
+                         {"name": "corridor east", "segment": [[5.7, -1.075], [10.0, -1.075]], "material": "plasterboard"},
+                         {"name": "back", "segment": [[-2.0, -3.1], [10.0, -3.1]], "material": "brick"}]
+        for key in ("clutter", "doors"):
+            data.pop(key, None)
+        data["impairments"] = dict(data["impairments"], system_delay_known=True)
+        data["trajectory"] = {"waypoints": [[0.0, 0.0], [8.0, 0.0]], "step_m": 0.2}
+        data["frames_per_pose"] = 2
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+
+        def back_wall(fused):
+            return [w for w in fused.walls if w.source == "echoes" and abs(0.5 * (w.start_m[1] + w.end_m[1]) + 3.0) < 0.3]
+
+        fused = mapped_with(sc, res)
+        pieces = back_wall(fused)
+        seen = [w for w in pieces if w.cls == "line_of_sight"]
+        self.assertEqual(len(seen), 1, pieces)
+        self.assertTrue(any(w.cls == "hidden" for w in pieces), pieces)
+        xs = sorted((seen[0].start_m[0], seen[0].end_m[0]))
+        self.assertGreater(xs[0], 3.0, seen)  # in the opening, half a pose step either side
+        self.assertLess(xs[1], 6.2, seen)
+        los_points = fused.detections["line_of_sight"]
+        on_back = los_points[np.abs(los_points[:, 1] + 3.0) < 0.3]
+        self.assertGreaterEqual(on_back.shape[0], 2)
+        self.assertTrue(np.all((on_back[:, 0] > 3.5) & (on_back[:, 0] < 5.7)), on_back)
+
+        unsplit = back_wall(mapped_with(sc, res, CLASS_SPLIT_MIN_POSES=0))
+        self.assertTrue(unsplit and all(w.cls == "hidden" for w in unsplit), unsplit)
+
     def test_skewed_side_wall_found_where_jade_reports_one(self):
         """skewed_walls' first 6 m: the plasterboard walls skewed 18° to the left and 12° to the
         right of the track are 30° apart, and where their echoes come within a fraction of a

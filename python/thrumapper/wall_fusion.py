@@ -1101,6 +1101,12 @@ class WallFusion:
                 d_delay[i] = det["delay"][i] - fit[1]
         return d_aoa, d_delay
 
+    #: a wall is drawn in pieces of each class where the echoes of at least this many
+    #: consecutive poses along it are of the class its majority is not (_class_pieces; 0: never)
+    CLASS_SPLIT_MIN_POSES = 2
+    #: ...through an opening where a line-of-sight wall's line holds less than this share of
+    #: its echo (_seen_through_opening)
+    OPENING_RATIO = 0.4
     #: walls confirmed on the CSI pose by pose (CsiWallRefiner.confirm_walls)
     CONFIRM_WALLS = True
     #: the materials a wall's echo strength chooses among (_estimate_materials): what
@@ -2382,23 +2388,46 @@ class WallFusion:
         absorbed = self._absorbed_by_side_walls(walls_in, wall_cls, side_walls)
         taken_echoes = [sum(int(walls_in[k]["members"].size) for k, n in absorbed.items() if n == n_side)
                         for n_side in range(len(side_walls))]
+        split_pieces = []  # (index in walls, the other pieces' MapWalls) of walls split by class
+        opening = None
+        if self._fits_on_csi and self.CLASS_SPLIT_MIN_POSES and any(c == HIDDEN for c in wall_cls):
+            los_in = [k for k, c in enumerate(wall_cls) if c == LOS and k not in absorbed]
+            same_line = {}  # each line-of-sight wall's echo is measured with its line's pieces left in
+            for group_members in self._collinear_groups([walls_in[k] for k in los_in]):
+                pieces_here = tuple(los_in[i] for i in group_members)
+                same_line.update({k: pieces_here for k in pieces_here})
+            # (the side and end walls' extents come from the search, not from echoes: an open
+            # door along a side wall is told by the CSI alone)
+            lines = [(walls_in[k], same_line.get(k, (k,))) for k in los_in] + \
+                [(w, ()) for w in list(side_walls) + list(end_walls)]
+            self._refiner_map(state, poses, wall_cls)
+
+            def opening(g, point):
+                return self._seen_through_opening(g, point, lines, poses)
         for k, w in enumerate(walls_in):
             members = w["members"]
-            resid = (pw[members] - w["centre"]) @ w["normal"]
-            rms = float(np.sqrt(np.mean(resid ** 2)))
-            n_poses = int(np.unique(group[members]).size)
-            cls = CLASSES[wall_cls[k]]
-            confidence = min(1.0, n_poses / 10.0) * math.exp(-(rms / s.line_tolerance_m) ** 2)
-            if cls == "hidden":
-                confidence *= 0.9  # a return through a wall carries that wall's uncertainty too
-            start = w["centre"] + ends[k][0] * w["direction"]
-            end = w["centre"] + ends[k][1] * w["direction"]
-            walls.append(MapWall(start, end, w["normal"].copy(), cls, float(confidence), n_poses, int(members.size), rms,
-                                 material=self._wall_material_names.get(k)))
-            owner, owner_cls = (side_walls[absorbed[k]], CLASSES[LOS]) if k in absorbed else (w, cls)
-            for i in members:
-                echoes[owner_cls].append(pw[i])
-                detections[owner_cls].append(self._fused_point(owner, poses[group[i]], pw[i]))
+            pieces = [(ends[k][0], ends[k][1], wall_cls[k], np.ones(members.size, bool))]
+            if k not in absorbed:
+                pieces = self._class_pieces(w, members, det_cls, group, pw, ends[k], wall_cls[k], opening)
+            made = []
+            for t0, t1, piece_cls, mine in pieces:
+                resid = (pw[members[mine]] - w["centre"]) @ w["normal"]
+                rms = float(np.sqrt(np.mean(resid ** 2)))
+                n_poses = int(np.unique(group[members[mine]]).size)
+                cls = CLASSES[piece_cls]
+                confidence = min(1.0, n_poses / 10.0) * math.exp(-(rms / s.line_tolerance_m) ** 2)
+                if cls == "hidden":
+                    confidence *= 0.9  # a return through a wall carries that wall's uncertainty too
+                made.append(MapWall(w["centre"] + t0 * w["direction"], w["centre"] + t1 * w["direction"],
+                                    w["normal"].copy(), cls, float(confidence), n_poses, int(np.count_nonzero(mine)),
+                                    rms, material=self._wall_material_names.get(k)))
+                owner, owner_cls = (side_walls[absorbed[k]], CLASSES[LOS]) if k in absorbed else (w, cls)
+                for i in members[mine]:
+                    echoes[owner_cls].append(pw[i])
+                    detections[owner_cls].append(self._fused_point(owner, poses[group[i]], pw[i]))
+            walls.append(made[0])
+            if len(made) > 1:
+                split_pieces.append((k, made[1:]))
         bridges = self._gap_bridges(walls, [k for k, c in enumerate(wall_cls) if c == LOS], walls_in, poses)
         kept = [k for k in range(len(walls_in)) if k not in absorbed]
         walls = [walls[k] for k in kept] + bridges
@@ -2417,6 +2446,8 @@ class WallFusion:
                                      end_wall["centre"] + end_wall["t1"] * end_wall["direction"],
                                      end_wall["normal"].copy(), CLASSES[LOS], end_wall["confidence"], end_wall["poses"],
                                      count, 0.0, source=source))
+        for _, others in split_pieces:  # after everything the corners index
+            walls.extend(others)
         for cls in CLASSES:
             detections[cls] = np.array(detections[cls]).reshape(-1, 2)
             echoes[cls] = np.array(echoes[cls]).reshape(-1, 2)
@@ -2431,6 +2462,110 @@ class WallFusion:
                       "walls_by_material": {m: sum(1 for w in walls if w.material == m)
                                             for m in sorted({w.material for w in walls if w.material})}})
         return FusedMap(walls, corners, scatterers, detections, echoes, poses, odometry, frame_indices, stats)
+
+    def _class_pieces(self, wall, members, det_cls, group, pw, ends, wall_class, opening=None):
+        """A hidden wall's stretches by its echoes' classes: [(t0, t1, class, member mask)]
+        along wall's direction, one piece unless the echoes of at least CLASS_SPLIT_MIN_POSES
+        consecutive poses along the wall (each pose's echoes by their majority) are line of
+        sight, each pose's view of them passing through an opening (`opening(g, point)`:
+        _seen_through_opening). A room's back wall seen through an open door is line of sight
+        there and hidden behind the corridor wall beside it: one class for the whole line
+        would put the detections of one stretch in the wrong class. Stretches shorter than
+        that take their neighbours' class; pieces meet halfway between their outermost
+        echoes."""
+        if members.size == 0 or not self.CLASS_SPLIT_MIN_POSES or wall_class != HIDDEN or opening is None:
+            return [(ends[0], ends[1], wall_class, np.ones(members.size, bool))]
+        t = (pw[members] - wall["centre"]) @ wall["direction"]
+        poses_here = np.unique(group[members])
+        pose_t = np.array([np.mean(t[group[members] == g]) for g in poses_here])
+        pose_cls = np.array([HIDDEN if np.mean(det_cls[members[group[members] == g]] == HIDDEN) > 0.5 else LOS
+                             for g in poses_here])
+        if not np.any(pose_cls == LOS):
+            return [(ends[0], ends[1], wall_class, np.ones(members.size, bool))]
+        for n, g in enumerate(poses_here):
+            if pose_cls[n] == LOS and not opening(int(g), np.mean(pw[members[group[members] == g]], axis=0)):
+                pose_cls[n] = HIDDEN
+        order = np.argsort(pose_t)
+        pose_t, pose_cls, poses_here = pose_t[order], pose_cls[order], poses_here[order]
+        # runs of one class along the wall; short runs take the class around them
+        runs = []
+        for i, c in enumerate(pose_cls):
+            if runs and runs[-1][2] == c:
+                runs[-1][1] = i
+            else:
+                runs.append([i, i, c])
+        if len(runs) == 1:
+            return [(ends[0], ends[1], int(runs[0][2]), np.ones(members.size, bool))]
+        for r in runs:
+            if r[1] - r[0] + 1 < self.CLASS_SPLIT_MIN_POSES:
+                r[2] = -1
+        if all(r[2] == -1 for r in runs):
+            return [(ends[0], ends[1], wall_class, np.ones(members.size, bool))]
+        for n, r in enumerate(runs):  # the nearest long run's class, the earlier one on a tie
+            if r[2] == -1:
+                before = next((runs[m] for m in range(n - 1, -1, -1) if runs[m][2] != -1 and runs[m] is not r), None)
+                after = next((runs[m] for m in range(n + 1, len(runs)) if runs[m][2] != -1), None)
+                near = [q for q in (before, after) if q is not None]
+                r[2] = min(near, key=lambda q: min(abs(pose_t[q[0]] - pose_t[r[0]]), abs(pose_t[q[1]] - pose_t[r[1]])))[2]
+        merged = []
+        for r in runs:
+            if merged and merged[-1][2] == r[2]:
+                merged[-1][1] = r[1]
+            else:
+                merged.append(list(r))
+        if len(merged) == 1:
+            return [(ends[0], ends[1], int(merged[0][2]), np.ones(members.size, bool))]
+        cuts = [0.5 * (pose_t[a[1]] + pose_t[b[0]]) for a, b in zip(merged[:-1], merged[1:])]
+        bounds = [ends[0]] + cuts + [ends[1]]
+        pieces = []
+        for n, r in enumerate(merged):
+            mine = np.isin(group[members], poses_here[r[0]:r[1] + 1])
+            pieces.append((float(bounds[n]), float(bounds[n + 1]), int(r[2]), mine))
+        return pieces
+
+    def _seen_through_opening(self, g, point, lines, poses):
+        """Whether pose g sees `point` (world) with no line-of-sight wall between: every line
+        of `lines` ((wall dict, the mapped walls on its line, left in the data for its gain):
+        the mapped line-of-sight walls, the side and end walls) that
+        the ray from the robot to it crosses, it crosses beyond the mapped extent of the walls
+        mapped from echoes (anywhere on a side or end wall's line), where the CSI holds less than EXTENSION_ABSENT_RATIO of that line's echo at this pose
+        (CsiWallRefiner.line_gain) against the median of its EXTENSION_REFERENCE_POSES poses
+        whose specular point lies on its mapped extent nearest the crossing (of all of them
+        for a side or end wall). An opening the
+        CSI does not show (no reference, no gain at this pose) is not one."""
+        robot = bistatic.robot_to_world(self.robot_c, poses[g])
+        for line, exclude in lines:
+            side_robot = float((robot - line["centre"]) @ line["normal"])
+            side_point = float((point - line["centre"]) @ line["normal"])
+            if side_robot * side_point >= 0:
+                continue
+            cross = robot + (point - robot) * (side_robot / (side_robot - side_point))
+            t_cross = float((cross - line["centre"]) @ line["direction"])
+            if exclude and line["t0"] <= t_cross <= line["t1"]:
+                return False  # a wall mapped from echoes stands there
+            here = self.refiner.line_gain(g, line, exclude)
+            if here is None:
+                return False
+            own = []
+            for h in sorted(self.refiner.poses):
+                if h >= len(poses) or float((poses[h][:2] - line["centre"]) @ line["normal"]) <= 0:
+                    continue
+                point_r, normal_r = self._robot_line(line, poses[h])
+                try:
+                    _, _, spec_r = bistatic.specular_path(point_r, normal_r, self.tx_c, self.rx_c)
+                except bistatic.GeometryError:
+                    continue
+                t = float((bistatic.robot_to_world(spec_r, poses[h]) - line["centre"]) @ line["direction"])
+                if line["t0"] <= t <= line["t1"]:
+                    own.append((abs(t - t_cross), h))
+            # a side or end wall's extent may span the opening: its reference is its whole
+            # extent's median, not the poses nearest the crossing
+            nearest = sorted(own) if not exclude else sorted(own)[:self.EXTENSION_REFERENCE_POSES]
+            reference = [v for v in (self.refiner.line_gain(h, line, exclude) for _, h in nearest)
+                         if v is not None]
+            if not reference or here >= self.OPENING_RATIO * float(np.median(reference)):
+                return False
+        return True
 
     def _gap_bridges(self, walls, los, fitted, poses, clearance_m=0.3):
         """Inferred walls across the gaps between consecutive pieces of one line-of-sight
