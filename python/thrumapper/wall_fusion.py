@@ -1492,16 +1492,7 @@ class WallFusion:
         Without a reference, or a pose beyond the end, the full LINE_GAP_M."""
         poses, wall = state["poses"], state["walls"][k]
         self._refiner_map(state, poses, wall_cls)
-        beside = []  # (t, g): where each pose's specular point lies along the line
-        for g in sorted(self.refiner.poses):
-            if g >= len(poses) or float((poses[g][:2] - wall["centre"]) @ wall["normal"]) <= 0:
-                continue
-            point_r, normal_r = self._robot_line(wall, poses[g])
-            try:
-                _, _, spec_r = bistatic.specular_path(point_r, normal_r, self.tx_c, self.rx_c)
-            except bistatic.GeometryError:
-                continue
-            beside.append((float((bistatic.robot_to_world(spec_r, poses[g]) - wall["centre"]) @ wall["direction"]), g))
+        beside = self._specular_along(wall, poses)
 
         def gain(g):
             # reused while the line stays within FIT_REUSE_M and FIT_REUSE_DEG in this pose's
@@ -1531,6 +1522,21 @@ class WallFusion:
                         break
             lengths.append(length)
         return lengths[0], lengths[1]
+
+    def _specular_along(self, wall, poses):
+        """[(t, g)]: where the specular point of each pose with CSI in front of the wall's
+        line lies along it (wall dict, world; its extent ignored)."""
+        out = []
+        for g in sorted(self.refiner.poses):
+            if g >= len(poses) or float((poses[g][:2] - wall["centre"]) @ wall["normal"]) <= 0:
+                continue
+            point_r, normal_r = self._robot_line(wall, poses[g])
+            try:
+                _, _, spec_r = bistatic.specular_path(point_r, normal_r, self.tx_c, self.rx_c)
+            except bistatic.GeometryError:
+                continue
+            out.append((float((bistatic.robot_to_world(spec_r, poses[g]) - wall["centre"]) @ wall["direction"]), g))
+        return out
 
     def _end_walls(self, state, poses, wall_cls, axial=()):
         """Walls across the track beyond its two ends, found on the CSI: the concave corners
@@ -2546,18 +2552,7 @@ class WallFusion:
             here = self.refiner.line_gain(g, line, exclude)
             if here is None:
                 return False
-            own = []
-            for h in sorted(self.refiner.poses):
-                if h >= len(poses) or float((poses[h][:2] - line["centre"]) @ line["normal"]) <= 0:
-                    continue
-                point_r, normal_r = self._robot_line(line, poses[h])
-                try:
-                    _, _, spec_r = bistatic.specular_path(point_r, normal_r, self.tx_c, self.rx_c)
-                except bistatic.GeometryError:
-                    continue
-                t = float((bistatic.robot_to_world(spec_r, poses[h]) - line["centre"]) @ line["direction"])
-                if line["t0"] <= t <= line["t1"]:
-                    own.append((abs(t - t_cross), h))
+            own = [(abs(t - t_cross), h) for t, h in self._specular_along(line, poses) if line["t0"] <= t <= line["t1"]]
             # a side or end wall's extent may span the opening: its reference is its whole
             # extent's median, not the poses nearest the crossing
             nearest = sorted(own) if not exclude else sorted(own)[:self.EXTENSION_REFERENCE_POSES]
