@@ -564,7 +564,7 @@ class WallFusion:
         #: a wall_refinement.CsiWallRefiner when the CSI is given (enable_csi_refinement)
         self.refiner = None
         self._weak_blockers = None  # per echo, set by build_map
-        self._line_gains = {}  # _extension_on_csi's, by pose and line; reset by build_map
+        self._line_gains = {}  # _line_gain's, by pose and line; reset by build_map
         self._wall_material_names = {}  # wall index: material (_estimate_materials), set by build_map
         self._tx_gains_db = {}  # _tx_gain_db's, by direction
         self.counts = {"messages": 0, "paths": 0, "skipped_nonfinite": 0, "skipped_early": 0, "skipped_far": 0,
@@ -1495,14 +1495,7 @@ class WallFusion:
         beside = self._specular_along(wall, poses)
 
         def gain(g):
-            # reused while the line stays within FIT_REUSE_M and FIT_REUSE_DEG in this pose's
-            # view, as the fits are (_fit_echo): between the rounds the map moves by centimetres
-            point_r, normal_r = self._robot_line(wall, poses[g])
-            key = (g, round(float(point_r @ normal_r) / self.FIT_REUSE_M),
-                   round(math.atan2(normal_r[1], normal_r[0]) / math.radians(self.FIT_REUSE_DEG)))
-            if key not in self._line_gains:
-                self._line_gains[key] = self.refiner.line_gain(g, wall, same_line)
-            return self._line_gains[key]
+            return self._line_gain(g, wall, same_line, poses)
 
         lengths = []
         for end, sign in ((wall["t0"], -1.0), (wall["t1"], 1.0)):
@@ -1522,6 +1515,17 @@ class WallFusion:
                         break
             lengths.append(length)
         return lengths[0], lengths[1]
+
+    def _line_gain(self, g, wall, exclude, poses):
+        """refiner.line_gain(g, wall, exclude), reused while the line stays within FIT_REUSE_M
+        and FIT_REUSE_DEG in pose g's view, as the fits are (_fit_echo): between the rounds the
+        map moves by centimetres. The cache (_line_gains) lasts one build_map."""
+        point_r, normal_r = self._robot_line(wall, poses[g])
+        key = (g, tuple(sorted(exclude)), round(float(point_r @ normal_r) / self.FIT_REUSE_M),
+               round(math.atan2(normal_r[1], normal_r[0]) / math.radians(self.FIT_REUSE_DEG)))
+        if key not in self._line_gains:
+            self._line_gains[key] = self.refiner.line_gain(g, wall, exclude)
+        return self._line_gains[key]
 
     def _specular_along(self, wall, poses):
         """[(t, g)]: where the specular point of each pose with CSI in front of the wall's
@@ -1895,7 +1899,7 @@ class WallFusion:
         self._phase_s = {}
         self._odometry_fit = None
         self._fit_cache = {}
-        self._line_gains = {}  # _extension_on_csi's, by pose and line
+        self._line_gains = {}  # _line_gain's, by pose and line
         s = self.settings
         odometry = np.array([g.pose for g in self.groups]).reshape(-1, 3)
         frame_indices = [g.frame_index for g in self.groups]
@@ -2509,7 +2513,7 @@ class WallFusion:
             return [(ends[0], ends[1], wall_class, np.ones(members.size, bool))]
         for n, r in enumerate(runs):  # the nearest long run's class, the earlier one on a tie
             if r[2] == -1:
-                before = next((runs[m] for m in range(n - 1, -1, -1) if runs[m][2] != -1 and runs[m] is not r), None)
+                before = next((runs[m] for m in range(n - 1, -1, -1) if runs[m][2] != -1), None)
                 after = next((runs[m] for m in range(n + 1, len(runs)) if runs[m][2] != -1), None)
                 near = [q for q in (before, after) if q is not None]
                 r[2] = min(near, key=lambda q: min(abs(pose_t[q[0]] - pose_t[r[0]]), abs(pose_t[q[1]] - pose_t[r[1]])))[2]
@@ -2532,13 +2536,13 @@ class WallFusion:
     def _seen_through_opening(self, g, point, lines, poses):
         """Whether pose g sees `point` (world) with no line-of-sight wall between: every line
         of `lines` ((wall dict, the mapped walls on its line, left in the data for its gain):
-        the mapped line-of-sight walls, the side and end walls) that
-        the ray from the robot to it crosses, it crosses beyond the mapped extent of the walls
-        mapped from echoes (anywhere on a side or end wall's line), where the CSI holds less than EXTENSION_ABSENT_RATIO of that line's echo at this pose
-        (CsiWallRefiner.line_gain) against the median of its EXTENSION_REFERENCE_POSES poses
-        whose specular point lies on its mapped extent nearest the crossing (of all of them
-        for a side or end wall). An opening the
-        CSI does not show (no reference, no gain at this pose) is not one."""
+        the mapped line-of-sight walls, the side and end walls) that the ray from the robot to
+        it crosses, it crosses beyond the mapped extent of the walls mapped from echoes
+        (anywhere on a side or end wall's line), where the CSI holds less than OPENING_RATIO
+        of that line's echo at this pose (_line_gain) against the median of its
+        EXTENSION_REFERENCE_POSES poses whose specular point lies on its mapped extent nearest
+        the crossing (of all of them for a side or end wall). An opening the CSI does not
+        show (no reference, no gain at this pose) is not one."""
         robot = bistatic.robot_to_world(self.robot_c, poses[g])
         for line, exclude in lines:
             side_robot = float((robot - line["centre"]) @ line["normal"])
@@ -2549,15 +2553,14 @@ class WallFusion:
             t_cross = float((cross - line["centre"]) @ line["direction"])
             if exclude and line["t0"] <= t_cross <= line["t1"]:
                 return False  # a wall mapped from echoes stands there
-            here = self.refiner.line_gain(g, line, exclude)
+            here = self._line_gain(g, line, exclude, poses)
             if here is None:
                 return False
             own = [(abs(t - t_cross), h) for t, h in self._specular_along(line, poses) if line["t0"] <= t <= line["t1"]]
             # a side or end wall's extent may span the opening: its reference is its whole
             # extent's median, not the poses nearest the crossing
             nearest = sorted(own) if not exclude else sorted(own)[:self.EXTENSION_REFERENCE_POSES]
-            reference = [v for v in (self.refiner.line_gain(h, line, exclude) for _, h in nearest)
-                         if v is not None]
+            reference = [v for v in (self._line_gain(h, line, exclude, poses) for _, h in nearest) if v is not None]
             if not reference or here >= self.OPENING_RATIO * float(np.median(reference)):
                 return False
         return True
