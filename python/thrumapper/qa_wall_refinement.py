@@ -34,6 +34,20 @@ def scene_data(name):
         return yaml.safe_load(handle)
 
 
+def straight_survey_data(walls, end_x_m, step_m):
+    """office_floor's radar and impairments (system delay known) with these walls only, no
+    clutter or doors, the robot driven along x = 0 .. end_x_m, 2 frames per pose: a scene
+    dict for scene.load_scene."""
+    data = scene_data("office_floor")
+    data["walls"] = walls
+    for key in ("clutter", "doors"):
+        data.pop(key, None)
+    data["impairments"] = dict(data["impairments"], system_delay_known=True)
+    data["trajectory"] = {"waypoints": [[0.0, 0.0], [end_x_m, 0.0]], "step_m": step_m}
+    data["frames_per_pose"] = 2
+    return data
+
+
 def simulated(name):
     sc = scene.load_scene(scene_path(name))
     return sc, building_sim.simulate_survey(sc, progress=False)
@@ -307,14 +321,9 @@ class qa_wall_refinement(gr_unittest.TestCase):
         within 8 cm of its face, and the north face is then covered from x = 0 to 6 m. Without
         the search that stretch is not mapped; with the north wall taken away (a corridor of
         one wall, nothing across the track), the search finds no wall."""
-        data = scene_data("office_floor")
-        data["walls"] = [{"name": "south", "segment": [[-2.0, -1.075], [10.0, -1.075]], "material": "plasterboard"},
-                         {"name": "north", "segment": [[-2.0, 1.075], [10.0, 1.075]], "material": "plasterboard"}]
-        for key in ("clutter", "doors"):
-            data.pop(key, None)
-        data["impairments"] = dict(data["impairments"], system_delay_known=True)
-        data["trajectory"] = {"waypoints": [[0.0, 0.0], [6.0, 0.0]], "step_m": 0.3}
-        data["frames_per_pose"] = 2
+        data = straight_survey_data(
+            [{"name": "south", "segment": [[-2.0, -1.075], [10.0, -1.075]], "material": "plasterboard"},
+             {"name": "north", "segment": [[-2.0, 1.075], [10.0, 1.075]], "material": "plasterboard"}], 6.0, 0.3)
 
         def mapped(walls, side_walls=True):
             sc = scene.load_scene(dict(data, walls=walls))
@@ -365,15 +374,9 @@ class qa_wall_refinement(gr_unittest.TestCase):
         - the extension ends there, and the plasterboard wall is mapped as line of sight (the
           truth); held to the full 4 m regardless of the CSI, it is classed hidden."""
         wf = importlib.import_module("gnuradio.thrumapper.wall_fusion")  # the package's name is the block
-        data = scene_data("office_floor")
-        data["walls"] = [{"name": "brick", "segment": [[4.5, -1.1], [9.5, -1.1]], "material": "brick"},
-                         {"name": "board", "segment": [[-2.0, -1.675], [4.0, -1.675]], "material": "plasterboard"}]
-        for key in ("clutter", "doors"):
-            data.pop(key, None)
-        data["impairments"] = dict(data["impairments"], system_delay_known=True)
-        data["trajectory"] = {"waypoints": [[0.0, 0.0], [8.5, 0.0]], "step_m": 0.25}
-        data["frames_per_pose"] = 2
-        sc = scene.load_scene(data)
+        sc = scene.load_scene(straight_survey_data(
+            [{"name": "brick", "segment": [[4.5, -1.1], [9.5, -1.1]], "material": "brick"},
+             {"name": "board", "segment": [[-2.0, -1.675], [4.0, -1.675]], "material": "plasterboard"}], 8.5, 0.25))
         res = building_sim.simulate_survey(sc, progress=False)
 
         # the line's echo, pose by pose, on the CSI the mapper sees (RX-calibrated, the direct
@@ -428,16 +431,10 @@ class qa_wall_refinement(gr_unittest.TestCase):
         corridor wall's echo there (_seen_through_opening). The brick wall is drawn hidden,
         with a line-of-sight piece in the opening and line-of-sight detections there only;
         with the split turned off (CLASS_SPLIT_MIN_POSES = 0) it is hidden from end to end."""
-        data = scene_data("office_floor")
-        data["walls"] = [{"name": "corridor west", "segment": [[-2.0, -1.075], [3.5, -1.075]], "material": "plasterboard"},
-                         {"name": "corridor east", "segment": [[5.7, -1.075], [10.0, -1.075]], "material": "plasterboard"},
-                         {"name": "back", "segment": [[-2.0, -3.1], [10.0, -3.1]], "material": "brick"}]
-        for key in ("clutter", "doors"):
-            data.pop(key, None)
-        data["impairments"] = dict(data["impairments"], system_delay_known=True)
-        data["trajectory"] = {"waypoints": [[0.0, 0.0], [8.0, 0.0]], "step_m": 0.2}
-        data["frames_per_pose"] = 2
-        sc = scene.load_scene(data)
+        sc = scene.load_scene(straight_survey_data(
+            [{"name": "corridor west", "segment": [[-2.0, -1.075], [3.5, -1.075]], "material": "plasterboard"},
+             {"name": "corridor east", "segment": [[5.7, -1.075], [10.0, -1.075]], "material": "plasterboard"},
+             {"name": "back", "segment": [[-2.0, -3.1], [10.0, -3.1]], "material": "brick"}], 8.0, 0.2))
         res = building_sim.simulate_survey(sc, progress=False)
 
         def back_wall(fused):
