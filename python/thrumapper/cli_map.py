@@ -61,9 +61,11 @@ def build_parser():
                    help="wall material for the slab correction when the survey has no thrumapper:wall_model: "
                         "plasterboard (default), stud_wall, brick, concrete, glass, wood, metal, or none")
     p.add_argument("--no-material-corrections", action="store_true",
-                   help="keep hidden walls labelled brick or concrete where the survey material's echo model "
-                        "fits them (by default each is moved by what its own material's model changes in its CSI "
-                        "fit: 0.18-0.30 m inward on the office floors; stats: material_corrections_m)")
+                   help="keep walls labelled brick or concrete where the survey material's echo model fits "
+                        "them (by default each is moved by what its own material's model changes in its CSI fit: "
+                        "0.18-0.30 m inward on the office floors' hidden exterior walls, 0.2-0.3 m on skewed_walls' "
+                        "line-of-sight brick wall; a line-of-sight wall only when labelled against walls facing its "
+                        "way; stats: material_corrections_m)")
     p.add_argument("--no-side-walls", action="store_true",
                    help="do not search the CSI for walls across the track from the line-of-sight walls where JADE "
                         "reports none (a corridor driven down its middle: both walls echo with the same delay and "

@@ -313,6 +313,33 @@ class qa_wall_refinement(gr_unittest.TestCase):
             self.assertGreater(min(abs(w.start_m[1] + 2.325), abs(w.end_m[1] + 2.325)), 0.15, w)
         self.assertEqual(len(fused.stats["material_corrections_m"]), len(brick), fused.stats["material_corrections_m"])
 
+    def test_line_of_sight_brick_wall_moved_by_its_material(self):
+        """skewed_walls: a brick wall (20 cm, εr 3.91, face at y = -1.0, x = 6 .. 11.5) in
+        view of the robot beside a plasterboard wall skewed 12° that faces the same way; the
+        survey states no wall material. The brick wall's echo is about 2.5 times what the
+        plasterboard model predicts against the skewed wall's (the same part of the TX beam
+        lights both), so it is labelled brick or concrete and, line of sight as it is, moved by
+        what that model changes in its fit (WallFusion._material_corrections): from about
+        0.2 m beyond its face, where the plasterboard model puts it, to within 0.1 m of it.
+        The plasterboard walls are not moved."""
+        sc = scene.load_scene(scene_path("skewed_walls"))
+        res = building_sim.simulate_survey(sc, progress=False)
+        self.assertIsNone(res.wall_model)
+        with tempfile.TemporaryDirectory() as tmp:
+            fused, _ = cli_map.map_survey(written_survey(tmp, sc, res, res.poses_odometry))
+        brick = [k for k, w in enumerate(fused.walls) if w.cls == "line_of_sight" and w.source == "echoes" and
+                 min(w.start_m[0], w.end_m[0]) > 5.0 and max(abs(w.start_m[1] + 1.0), abs(w.end_m[1] + 1.0)) < 0.4]
+        self.assertEqual(len(brick), 1, fused.walls)
+        wall = fused.walls[brick[0]]
+        self.assertIn(wall.material, ("brick", "concrete"), wall)
+        self.assertLess(max(abs(wall.start_m[1] + 1.0), abs(wall.end_m[1] + 1.0)), 0.1, wall)
+        moved = fused.stats["material_corrections_m"]
+        self.assertTrue(moved, fused.stats)
+        # the correction moved it toward the robot by what separated it from its face
+        self.assertTrue(any(0.15 < abs(offset) < 0.3 for offset in moved.values()), moved)
+        self.assertEqual({w.material for w in fused.walls if w.material and w.cls == "line_of_sight" and
+                          w.source == "echoes" and w is not wall}, {"plasterboard"}, fused.walls)
+
     def test_side_wall_found_where_jade_reports_one(self):
         """A corridor of two plasterboard walls 2.15 m apart (faces at y = -1.0 and +1.0), the
         robot down its middle with the office's radar: both walls' echoes come with the same

@@ -107,8 +107,9 @@ class FusionSettings:
     #: are against the line-of-sight walls' (WallFusion._estimate_materials); off when the
     #: survey states its walls' material (thrumapper:wall_model)
     estimate_materials: bool = True
-    #: ...and move each hidden wall labelled other than the survey's material by what its
-    #: material's echo model changes in its CSI fit (WallFusion._material_corrections)
+    #: ...and move each wall labelled other than the survey's material by what its material's
+    #: echo model changes in its CSI fit (a line-of-sight wall only when labelled against walls
+    #: facing its way: WallFusion._material_corrections)
     correct_materials: bool = True
     #: correct the poses (scan-to-map, then a global least-squares adjustment)
     correct_poses: bool = True
@@ -566,6 +567,7 @@ class WallFusion:
         self._weak_blockers = None  # per echo, set by build_map
         self._line_gains = {}  # _line_gain's, by pose and line; reset by build_map
         self._wall_material_names = {}  # wall index: material (_estimate_materials), set by build_map
+        self._facing_reference, self._material_levels = {}, {}
         self._tx_gains_db = {}  # _tx_gain_db's, by direction
         self.counts = {"messages": 0, "paths": 0, "skipped_nonfinite": 0, "skipped_early": 0, "skipped_far": 0,
                        "skipped_weak": 0}
@@ -1250,21 +1252,24 @@ class WallFusion:
             return float(walls[j]["normal"] @ walls[k]["normal"]) > cos_facing
 
         levels = {}
+        self._facing_reference = {}  # wall index: how many of its levels were against walls facing its way
         for (g, k), st in strengths.items():
             # the line-of-sight reference, nearest first: the walls its legs cross at this pose,
             # the others facing the same way at this pose, at any pose, any other line-of-sight
             # wall (the TX beam is 10-20 dB weaker on the side of its null, and the model's gain
             # there less sure: the office's two corridor walls differ by 0.7x)
-            for refs in ([los[(g, j)] for j in st["crossed"] if (g, j) in los],
-                         [v for (h, j), v in los.items() if h == g and j != k and facing(j, k)],
-                         [v for (h, j), v in los.items() if j != k and facing(j, k)],
-                         [v for (h, j), v in los.items() if j != k]):
+            for tier, refs in enumerate(([los[(g, j)] for j in st["crossed"] if (g, j) in los],
+                                         [v for (h, j), v in los.items() if h == g and j != k and facing(j, k)],
+                                         [v for (h, j), v in los.items() if j != k and facing(j, k)],
+                                         [v for (h, j), v in los.items() if j != k])):
                 if refs:
                     break
             else:  # the only line-of-sight wall: the reference itself, of the survey's material
                 levels.setdefault(k, []).append((0.0, st["predicted"]))
                 continue
+            self._facing_reference[k] = self._facing_reference.get(k, 0) + (tier < 3)
             levels.setdefault(k, []).append((math.log(st["gain"] / float(np.median(refs))), st["predicted"]))
+        self._material_levels = {k: len(items) for k, items in levels.items()}
         names = {}
         for k, items in levels.items():
             if len(items) < self.MATERIAL_MIN_POSES:
@@ -1276,18 +1281,22 @@ class WallFusion:
         return names
 
     def _material_corrections(self, state, wall_cls):
-        """Each hidden wall labelled with another material than the survey's moved along its
-        normal, with its echoes, by what that material's echo model changes in its CSI fit
-        (CsiWallRefiner.material_shift; a shift at the fit's bound is not taken). Only hidden
-        walls: the line-of-sight walls are the labels' reference, the survey's material, and
-        one labelled otherwise is more likely a wall the fit got wrong (skewed_walls' 18 deg
-        wall, labelled concrete) than a brick wall in a plasterboard corridor. The fits of the
-        other walls are not made again (fed back into every fit and the pose rounds, the labels
-        made the office maps worse: docs/mapping.md, "Materials"). Needs the refiner holding
-        this map (_estimate_materials hands it over). Returns {wall index: offset_m}."""
+        """Each wall labelled with another material than the survey's moved along its normal,
+        with its echoes, by what that material's echo model changes in its CSI fit
+        (CsiWallRefiner.material_shift; a shift at the fit's bound is not taken). A
+        line-of-sight wall only when most of its label's levels were measured against walls
+        facing its way (_estimate_materials' first three references): a wall across the
+        corridor, lit by another part of the TX beam than the walls it was measured against,
+        is labelled less surely (office_floor seed 1: its plasterboard end wall labelled
+        brick, and moved 0.25 m the wrong way). The fits of the other walls are not made again
+        (fed back into every fit and the pose rounds, the labels made the office maps worse:
+        docs/mapping.md, "Materials"). Needs the refiner holding this map
+        (_estimate_materials hands it over). Returns {wall index: offset_m}."""
         moved = {}
         for k, name in sorted(self._wall_material_names.items()):
-            if wall_cls[k] != HIDDEN or name == getattr(self.material, "name", None):
+            if name == getattr(self.material, "name", None):
+                continue
+            if wall_cls[k] == LOS and 2 * self._facing_reference.get(k, 0) < self._material_levels.get(k, 1):
                 continue
             offset = self.refiner.material_shift(k, scene.MATERIAL_PRESETS[name])
             if abs(offset) >= self.refiner.settings.max_offset_m:
