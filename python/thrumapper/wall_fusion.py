@@ -567,7 +567,7 @@ class WallFusion:
         self._weak_blockers = None  # per echo, set by build_map
         self._line_gains = {}  # _line_gain's, by pose and line; reset by build_map
         self._wall_material_names = {}  # wall index: material (_estimate_materials), set by build_map
-        self._facing_reference, self._material_levels = {}, {}
+        self._labelled_facing = set()  # walls labelled mostly against walls facing their way (_estimate_materials)
         self._tx_gains_db = {}  # _tx_gain_db's, by direction
         self.counts = {"messages": 0, "paths": 0, "skipped_nonfinite": 0, "skipped_early": 0, "skipped_far": 0,
                        "skipped_weak": 0}
@@ -1231,6 +1231,7 @@ class WallFusion:
         is taken. The line-of-sight walls are the reference (nearest first, in the loop
         below), so the survey's material must be most of theirs (a corridor)."""
         self._refiner_map(state, poses, wall_cls)
+        self._labelled_facing = set()
         survey = getattr(self.material, "name", "survey")
         candidates = {survey: self.material}
         candidates.update({n: scene.MATERIAL_PRESETS[n] for n in self.MATERIAL_CANDIDATES if n != survey})
@@ -1251,8 +1252,7 @@ class WallFusion:
         def facing(j, k):  # on the same side of the corridor: lit by the same part of the TX beam
             return float(walls[j]["normal"] @ walls[k]["normal"]) > cos_facing
 
-        levels = {}
-        self._facing_reference = {}  # wall index: how many of its levels were against walls facing its way
+        levels = {}  # wall index: [(log level, predicted, whether measured against walls facing its way)]
         for (g, k), st in strengths.items():
             # the line-of-sight reference, nearest first: the walls its legs cross at this pose,
             # the others facing the same way at this pose, at any pose, any other line-of-sight
@@ -1265,17 +1265,16 @@ class WallFusion:
                 if refs:
                     break
             else:  # the only line-of-sight wall: the reference itself, of the survey's material
-                levels.setdefault(k, []).append((0.0, st["predicted"]))
+                levels.setdefault(k, []).append((0.0, st["predicted"], False))
                 continue
-            self._facing_reference[k] = self._facing_reference.get(k, 0) + (tier < 3)
-            levels.setdefault(k, []).append((math.log(st["gain"] / float(np.median(refs))), st["predicted"]))
-        self._material_levels = {k: len(items) for k, items in levels.items()}
+            levels.setdefault(k, []).append((math.log(st["gain"] / float(np.median(refs))), st["predicted"], tier < 3))
+        self._labelled_facing = {k for k, items in levels.items() if 2 * sum(f for _, _, f in items) >= len(items)}
         names = {}
         for k, items in levels.items():
             if len(items) < self.MATERIAL_MIN_POSES:
                 continue
-            level = float(np.median([x for x, _ in items]))
-            miss = {n: abs(level - float(np.median([math.log(max(p[n], 1e-12)) for _, p in items])))
+            level = float(np.median([x for x, _, _ in items]))
+            miss = {n: abs(level - float(np.median([math.log(max(p[n], 1e-12)) for _, p, _ in items])))
                     for n in candidates}
             names[k] = min(miss, key=miss.get)
         return names
@@ -1296,7 +1295,7 @@ class WallFusion:
         for k, name in sorted(self._wall_material_names.items()):
             if name == getattr(self.material, "name", None):
                 continue
-            if wall_cls[k] == LOS and 2 * self._facing_reference.get(k, 0) < self._material_levels.get(k, 1):
+            if wall_cls[k] == LOS and k not in self._labelled_facing:
                 continue
             offset = self.refiner.material_shift(k, scene.MATERIAL_PRESETS[name])
             if abs(offset) >= self.refiner.settings.max_offset_m:
@@ -2420,9 +2419,10 @@ class WallFusion:
             lines = [(walls_in[k], same_line.get(k, (k,))) for k in los_in] + \
                 [(w, ()) for w in list(side_walls) + list(end_walls)]
             self._refiner_map(state, poses, wall_cls)
+            along = {}  # _specular_along of each line, by its place in lines, made when first needed
 
             def opening(g, point):
-                return self._seen_through_opening(g, point, lines, poses)
+                return self._seen_through_opening(g, point, lines, poses, along)
         for k, w in enumerate(walls_in):
             members = w["members"]
             pieces = [(ends[k][0], ends[k][1], wall_cls[k], np.ones(members.size, bool))]
@@ -2542,7 +2542,7 @@ class WallFusion:
             pieces.append((float(bounds[n]), float(bounds[n + 1]), int(r[2]), mine))
         return pieces
 
-    def _seen_through_opening(self, g, point, lines, poses):
+    def _seen_through_opening(self, g, point, lines, poses, along=None):
         """Whether pose g sees `point` (world) with no line-of-sight wall between: every line
         of `lines` ((wall dict, the mapped walls on its line, left in the data for its gain):
         the mapped line-of-sight walls, the side and end walls) that the ray from the robot to
@@ -2551,9 +2551,11 @@ class WallFusion:
         of that line's echo at this pose (_line_gain) against the median of its
         EXTENSION_REFERENCE_POSES poses whose specular point lies on its mapped extent nearest
         the crossing (of all of them for a side or end wall). An opening the CSI does not
-        show (no reference, no gain at this pose) is not one."""
+        show (no reference, no gain at this pose) is not one. `along` keeps each line's
+        _specular_along between calls (by the line's place in lines)."""
+        along = {} if along is None else along
         robot = bistatic.robot_to_world(self.robot_c, poses[g])
-        for line, exclude in lines:
+        for n, (line, exclude) in enumerate(lines):
             side_robot = float((robot - line["centre"]) @ line["normal"])
             side_point = float((point - line["centre"]) @ line["normal"])
             if side_robot * side_point >= 0:
@@ -2565,7 +2567,9 @@ class WallFusion:
             here = self._line_gain(g, line, exclude, poses)
             if here is None:
                 return False
-            own = [(abs(t - t_cross), h) for t, h in self._specular_along(line, poses) if line["t0"] <= t <= line["t1"]]
+            if n not in along:
+                along[n] = self._specular_along(line, poses)
+            own = [(abs(t - t_cross), h) for t, h in along[n] if line["t0"] <= t <= line["t1"]]
             # a side or end wall's extent may span the opening: its reference is its whole
             # extent's median, not the poses nearest the crossing
             nearest = sorted(own) if not exclude else sorted(own)[:self.EXTENSION_REFERENCE_POSES]
