@@ -172,6 +172,54 @@ class EchoModel:
                     gain = gain * np.where(hit[..., None], t, 1.0)
         return np.einsum("k,kmn->mn", self.weights, gain) * self._lambda_m
 
+    def _double_images(self, q1, n1, q2, n2):
+        """TX → face 1 (through q1, unit normal n1) → face 2 → RX for every element pair, by
+        imaging the TX element in face 1 and then in face 2: (path length (K, M), last leg
+        (K, M, 2), middle leg (K, M, 2), first bounce point, second bounce point, and where
+        each bounce lies along its leg, t1 and t2, in (0, 1) for a real path)."""
+        image1 = bistatic.mirror(self.tx_m, q1, n1)  # (K, 2)
+        image12 = bistatic.mirror(image1, q2, n2)
+        v = self.rx_m[None, :, :] - image12[:, None, :]  # (K, M, 2): the last leg's line
+        length_m = np.linalg.norm(v, axis=2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t2 = ((q2 - image12) @ n2)[:, None] / (v @ n2)
+            second = image12[:, None, :] + t2[..., None] * v
+            w = second - image1[:, None, :]
+            t1 = ((q1 - image1) @ n1)[:, None] / (w @ n1)
+            first = image1[:, None, :] + t1[..., None] * w
+        return length_m, v, w, first, second, t1, t2
+
+    def _double_gain(self, ok, length_m, v, w, n1, n2, material):
+        """(M, N) CSI of the double bounces of the pairs `ok` (from _double_images): Γ at both
+        bounces' incidences, λ/(4πL), the TX weights; system delay 0."""
+        cos2 = np.where(ok, np.abs(v @ n2) / length_m, 1.0)
+        cos1 = np.where(ok, np.abs(w @ n1) / np.linalg.norm(w, axis=2), 1.0)
+        if material is None:
+            gamma = np.ones((1, 1, self.freqs_hz.size), complex)  # two conductor bounces: (−1)²
+        else:
+            gamma = self.coefficients(material, cos1, 0) * self.coefficients(material, cos2, 0)
+        phase = np.multiply.outer(length_m, self._k_hz)
+        gain = gamma * (np.cos(phase) - 1j * np.sin(phase))
+        gain *= (ok / (4.0 * np.pi * length_m))[..., None]
+        return np.einsum("k,kmn->mn", self.weights, gain) * self._lambda_m
+
+    def double_csi(self, first_point_m, first_normal, second_point_m, second_normal, material):
+        """(M, N) CSI of the double bounce TX → wall 1 → wall 2 → RX between two infinite
+        faces (a corridor's walls facing each other), system delay 0, robot frame: each
+        element pair's own path length and incidences, Γ of `material` at both bounces. A
+        pair whose bounces fall behind a focus or on a face's back adds nothing."""
+        q1 = np.asarray(first_point_m, float)
+        q2 = np.asarray(second_point_m, float)
+        n1 = np.asarray(first_normal, float) / np.hypot(*first_normal)
+        n2 = np.asarray(second_normal, float) / np.hypot(*second_normal)
+        length_m, v, w, first, second, t1, t2 = self._double_images(q1, n1, q2, n2)
+        with np.errstate(invalid="ignore"):
+            ok = ((t2 > 0) & (t2 < 1) & (t1 > 0) & (t1 < 1) & ((second - q1) @ n1 > 0) & ((first - q2) @ n2 > 0)
+                  & ((self.tx_m - q1) @ n1 > 0)[:, None] & ((self.rx_m - q2) @ n2 > 0)[None, :])
+        if not np.any(ok):
+            return np.zeros((self.rx_m.shape[0], self.freqs_hz.size), complex)
+        return self._double_gain(ok, length_m, v, w, n1, n2, material)
+
     def corner_csi(self, corner_m, normal_a, normal_b, material):
         """(M, N) CSI of a concave corner's double bounce (TX → face a → face b → RX and TX →
         b → a → RX), system delay 0, robot frame. The faces are half-lines from corner_m, each
@@ -191,30 +239,11 @@ class EchoModel:
         in_front = (np.all((self.tx_m - c) @ np.column_stack((n_a, n_b)) > 0, axis=1)[:, None] &
                     np.all((self.rx_m - c) @ np.column_stack((n_a, n_b)) > 0, axis=1)[None, :])
         for (n1, d1), (n2, d2) in (((n_a, d_a), (n_b, d_b)), ((n_b, d_b), (n_a, d_a))):
-            image1 = bistatic.mirror(self.tx_m, c, n1)  # (K, 2)
-            image12 = bistatic.mirror(image1, c, n2)
-            v = self.rx_m[None, :, :] - image12[:, None, :]  # (K, M, 2): the last leg's line
-            length_m = np.linalg.norm(v, axis=2)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t2 = ((c - image12) @ n2)[:, None] / (v @ n2)
-                second = image12[:, None, :] + t2[..., None] * v
-                w = second - image1[:, None, :]
-                t1 = np.sum((c - image1)[:, None, :] * n1, axis=2) / (w @ n1)
-                first = image1[:, None, :] + t1[..., None] * w
+            length_m, v, w, first, second, t1, t2 = self._double_images(c, n1, c, n2)
+            with np.errstate(invalid="ignore"):
                 ok = ((second - c) @ d2 >= 0) & ((first - c) @ d1 >= 0) & (t2 > 0) & (t2 < 1) & (t1 > 0) & (t1 < 1) & in_front
-            if not np.any(ok):
-                continue
-            cos2 = np.abs(v @ n2) / length_m
-            cos1 = np.abs(w @ n1) / np.linalg.norm(w, axis=2)
-            if material is None:
-                gamma = np.ones((1, 1, self.freqs_hz.size), complex)  # two conductor bounces: (−1)²
-            else:
-                gamma = self.coefficients(material, np.where(ok, cos1, 1.0), 0) * \
-                    self.coefficients(material, np.where(ok, cos2, 1.0), 0)
-            phase = np.multiply.outer(length_m, self._k_hz)
-            gain = gamma * (np.cos(phase) - 1j * np.sin(phase))
-            gain *= (ok / (4.0 * np.pi * length_m))[..., None]
-            total += np.einsum("k,kmn->mn", self.weights, gain) * self._lambda_m
+            if np.any(ok):
+                total += self._double_gain(ok, length_m, v, w, n1, n2, material)
         return total
 
     # -- a one-path fit ------------------------------------------------------------------

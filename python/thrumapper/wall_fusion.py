@@ -416,6 +416,11 @@ class WallFusion:
     radar: a RadarGeometry (or a thrumapper.radar_description, or a Survey).
     """
 
+    #: the CSI fits model what the TX chains' errors leave of the direct path, estimated once
+    #: per map on the first map's walls (CsiWallRefiner.estimate_direct_leak): off, because
+    #: the map is not better for it yet, though the fits are (docs/mapping.md, "Two errors of
+    #: the echo model")
+    ESTIMATE_DIRECT_LEAK = False
     #: the sequential pose pass aligns an echo with its predecessors' echoes this close
     SEQUENTIAL_REACH_M = 4.0
     #: ...and uses only echoes this close to the robot
@@ -1089,6 +1094,10 @@ class WallFusion:
         d_aoa, d_delay = np.zeros(n), np.zeros(n)
         _, wall_cls = self._classify(state)
         self._refiner_map(state, poses, wall_cls)
+        if self.ESTIMATE_DIRECT_LEAK and not self._leak_estimated:
+            # once, on the first map: it is the same at every pose and for the whole survey
+            self._direct_leak_db = self.refiner.estimate_direct_leak()
+            self._leak_estimated = True
         labels = state["labels"]
         group = det["group"]
         pairs = [(i, int(group[i]), int(labels[i])) for i in range(n) if labels[i] >= 0]
@@ -1907,6 +1916,8 @@ class WallFusion:
         self._phase_s = {}
         self._odometry_fit = None
         self._fit_cache = {}
+        self._leak_estimated = False
+        self._direct_leak_db = None
         self._line_gains = {}  # _line_gain's, by pose and line
         s = self.settings
         odometry = np.array([g.pose for g in self.groups]).reshape(-1, 3)
@@ -2007,6 +2018,8 @@ class WallFusion:
         result.stats["unconfirmed_echoes"] = int(np.count_nonzero(self._unconfirmed))
         if self._odometry_fit:
             result.stats.update(self._odometry_fit)
+        if self._leak_estimated:
+            result.stats["direct_leak_db"] = self._direct_leak_db
         result.stats["fusion_phases_s"] = dict(self._phase_s)
         result.stats["elapsed_s"] = time.perf_counter() - started
         return result

@@ -75,6 +75,7 @@ class _Pose:
         self.rows = csi.reshape(csi.shape[0], -1)
         self.model = model
         self.direct = direct  # (M*N,) the direct path, cancelled from the data
+        self.leak = None  # (M*N,) what the TX chains' errors leave of it (estimate_direct_leak)
 
 
 class CsiWallRefiner:
@@ -83,6 +84,13 @@ class CsiWallRefiner:
     radar: the fusion's RadarGeometry; system_delay_s: τ_sys of the CSI; material: the walls'
     scene.Material (None: a perfect conductor).
     """
+
+    #: model the double bounces between facing line-of-sight walls (_double_echoes): off,
+    #: because the fusion's map is not better for it yet, though the fits are (docs/mapping.md,
+    #: "Two errors of the echo model")
+    DOUBLE_BOUNCES = False
+    #: walls whose normals are within this of opposite face each other
+    DOUBLE_FACING_DEG = 20.0
 
     def __init__(self, radar, system_delay_s, material, settings=None):
         self.radar = radar
@@ -94,6 +102,7 @@ class CsiWallRefiner:
         self._sys = np.exp(-2j * np.pi * self.freqs_hz * self.system_delay_s)
         self._models = {}
         self._axial_cache = {}
+        self._element_direct = None
         self.poses = {}
         rx = np.asarray(radar.rx_elements_m, float)
         self._rx_rel = rx - rx.mean(axis=0)
@@ -143,10 +152,12 @@ class CsiWallRefiner:
         space = np.exp(2j * np.pi * np.outer(self._rx_rel @ u, self.freqs_hz) / C)  # (M, N)
         return (space * np.exp(-2j * np.pi * self.freqs_hz * delay_s) * self._sys).ravel()
 
-    def _echo(self, data, wall, pose, crossed, material=None):
+    def _echo(self, data, wall, pose, crossed, material=None, doubles=False):
         """The wall's predicted echo at a pose, (M*N,), or None when the pose does not see it;
         of the survey's material, or of `material` when given (the walls its legs cross stay
-        of the survey's)."""
+        of the survey's). With `doubles`, the double bounces between it and the mapped
+        line-of-sight walls facing it are added (_double_echoes): the echo of a line-of-sight
+        wall being fitted."""
         point_r = bistatic.world_to_robot(wall["centre"], pose)
         normal_r = bistatic.rotate(wall["normal"], -pose[2])
         try:
@@ -164,8 +175,62 @@ class CsiWallRefiner:
         crossed_r = tuple((bistatic.world_to_robot(c["centre"], pose), bistatic.rotate(c["normal"], -pose[2]),
                            self.material) for c in crossed(spec, pose))
         material = self.material if material is None else material
-        v = (data.model.echo_csi(point_r, normal_r, material, crossed_r) * self._sys).ravel()
-        return v, aoa, delay
+        h = data.model.echo_csi(point_r, normal_r, material, crossed_r)
+        if doubles and not crossed_r:
+            for d, _, _, _ in self._double_echoes(data, wall, pose, material):
+                h = h + d
+        return (h * self._sys).ravel(), aoa, delay
+
+    def _double_echoes(self, data, wall, pose, material=None, after=-1):
+        """The double bounces between `wall` and each mapped line-of-sight wall j facing it
+        (normals within DOUBLE_FACING_DEG of opposite; only j > after), both orders:
+        [((M, N) CSI without the system delay, aoa_rad, delay_s, j)]. A corridor's two sides
+        answer each other 6-7 ns after their own echoes (2 m across), within the 8 ns
+        resolution, and the bounce that leaves the TX in its main lobe toward the strong wall
+        arrives within 10 deg of the weak wall's echo: left out of the model, the doubles
+        pulled a simulated corridor's fits 4.5 and 6 cm toward the robot (docs/mapping.md).
+        A double exists when both bounce points of the path between the array centres lie
+        on the walls' mapped extents."""
+        material = self.material if material is None else material
+        point_r = bistatic.world_to_robot(wall["centre"], pose)
+        normal_r = bistatic.rotate(wall["normal"], -pose[2])
+        cos_facing = -math.cos(math.radians(self.DOUBLE_FACING_DEG))
+        out = []
+        for j, b in enumerate(self.walls):
+            if j <= after or self.hidden[j] or float(wall["normal"] @ b["normal"]) > cos_facing:
+                continue
+            if float((pose[:2] - b["centre"]) @ b["normal"]) <= 0:
+                continue
+            qb, nb = bistatic.world_to_robot(b["centre"], pose), bistatic.rotate(b["normal"], -pose[2])
+            for first, second in (((point_r, normal_r, wall), (qb, nb, b)), ((qb, nb, b), (point_r, normal_r, wall))):
+                path = bistatic.double_bounce_path(first[0], first[1], second[0], second[1], self.tx_c, self.rx_c)
+                if path is None:
+                    continue
+                on_walls = True
+                for p_r, w in zip(path[2], (first[2], second[2])):
+                    t = float((bistatic.robot_to_world(p_r, pose) - w["centre"]) @ w["direction"])
+                    on_walls &= w["t0"] <= t <= w["t1"]
+                if on_walls:
+                    out.append((data.model.double_csi(first[0], first[1], second[0], second[1], material),
+                                path[0], path[1], j))
+        return out
+
+    def _doubles(self, g):
+        """Every double bounce between the mapped line-of-sight walls at group g, each pair
+        once (both orders): [((M*N,) CSI, aoa_rad, delay_s, i, j)]; cached until set_map."""
+        if not self.DOUBLE_BOUNCES:
+            return []
+        cached = self._double_cache.get(g)
+        if cached is None:
+            data, pose = self.poses[g], self.world_poses[g]
+            cached = []
+            for i, w in enumerate(self.walls):
+                if self.hidden[i] or float((pose[:2] - w["centre"]) @ w["normal"]) <= 0:
+                    continue
+                for d, aoa, delay, j in self._double_echoes(data, w, pose, after=i):
+                    cached.append(((d * self._sys).ravel(), aoa, delay, i, j))
+            self._double_cache[g] = cached
+        return cached
 
     @staticmethod
     def _project_out(v, basis):
@@ -180,6 +245,7 @@ class CsiWallRefiner:
         self.world_poses = np.asarray(poses, float).reshape(-1, 3)
         self.group_paths = group_paths
         self.hidden = list(hidden)
+        self._double_cache = {}
 
     def _crossed_for(self, k, among=None):
         """A function (specular point, pose) -> the line-of-sight walls the legs cross (of
@@ -218,13 +284,99 @@ class CsiWallRefiner:
             explained.append((e[1], e[2]))
             if j not in excluded:
                 cols.append(e[0])
+        for v, aoa, delay, i, j in self._doubles(g):
+            explained.append((aoa, delay))  # JADE's path of it is the double, not another thing
+            if i not in excluded and j not in excluded:
+                cols.append(v)  # (a double of an excluded wall is part of that wall's echo)
         for aoa, delay in self.group_paths[g] if unexplained_paths and g < len(self.group_paths) else ():
             near = any(abs(math.remainder(aoa - a, 2.0 * math.pi)) < math.radians(s.explained_angle_deg) and
                        abs(delay - d) < s.explained_delay_s for a, d in explained)
             if not near:
                 cols.append(self._far_field(aoa, delay))
         cols.append(data.direct)
+        if data.leak is not None:
+            cols.append(data.leak)
         return self._orthonormal(cols)
+
+    def _element_directs(self):
+        """(M*N, K): the direct path from each TX element alone, unit weight (pose-invariant:
+        the arrays are rigid)."""
+        if self._element_direct is None:
+            k = len(self.radar.tx_elements_m)
+            self._element_direct = np.array([self._direct_response(np.eye(k, dtype=complex)[i]) for i in range(k)]).T
+        return self._element_direct
+
+    def _with_derivatives(self, g, basis, step_m=0.01, step_rad=math.radians(0.5)):
+        """basis and, for every mapped wall seen at group g, its echo's change when the wall
+        moves along its normal and turns about its specular point: a wall mapped a few cm off
+        leaves the first-order error of its echo in the data, which is not the direct path's."""
+        data, pose = self.poses[g], self.world_poses[g]
+        cols = [basis]
+        for j, w in enumerate(self.walls):
+            crossed = self._crossed_for(j)
+            base = self._echo(data, w, pose, crossed)
+            if base is None:
+                continue
+            try:
+                pivot = self._pivot(w, pose)
+            except bistatic.GeometryError:
+                continue
+            c, s_ = math.cos(step_rad), math.sin(step_rad)
+            rot = np.array([[c, -s_], [s_, c]])
+            moved = dict(w, centre=w["centre"] + step_m * w["normal"])
+            normal = rot @ w["normal"]
+            turned = dict(w, centre=pivot + rot @ (w["centre"] - pivot), normal=normal,
+                          direction=np.array([-normal[1], normal[0]]))
+            for trial in (moved, turned):
+                e = self._echo(data, trial, pose, crossed)
+                if e is not None:
+                    cols.append((e[0] - base[0])[:, None])
+        return self._orthonormal(list(np.hstack(cols).T)) if len(cols) > 1 else basis
+
+    def estimate_direct_leak(self, groups=None):
+        """What the data still holds of the direct path, estimated once for the survey and
+        modelled at every pose from then on (docs/mapping.md, "Two errors of the echo model").
+
+        The estimator cancels the direct path of the nominal TX weights, but each TX chain
+        has its own small gain and phase error a_k (the survey calibrates the RX side only),
+        and the weights' null toward the RX is what keeps the direct path below the echoes:
+        with the simulated offices' 0.1 dB and 2 deg of TX error, what is left of it lies
+        9-25 dB below the corridor echoes, 4.7 ns before them. It is the same at every pose
+        (the arrays are rigid): sum_k w_k a_k d_k over the elements' direct paths d_k, less
+        its part along the cancelled nominal path. The a_k are fitted by least squares over
+        every frame of these groups (default all), with everything the map models there
+        projected out (walls, doubles, the nominal direct path) and the walls' echoes'
+        changes for a centimetre's move and half a degree's turn too, so that walls mapped a
+        little off do not pass their error into it. The elements' direct paths are nearly
+        collinear, so the a_k themselves are not determined, only the leak they make, which
+        is what the fits need. Returns its energy over the data's, in dB (None without
+        groups)."""
+        d = self._element_directs()
+        k = d.shape[1]
+        gram = np.zeros((k, k), complex)
+        rhs = np.zeros(k, complex)
+        groups = [g for g in (sorted(self.poses) if groups is None else groups) if g < len(self.world_poses)]
+        for g in groups:
+            data = self.poses[g]
+            data.leak = None
+            basis = self._with_derivatives(g, self._basis(g, None, unexplained_paths=False))
+            a = self._project_out(d * data.model.weights[None, :], basis)  # (M*N, K)
+            y = self._project_out(data.rows.T, basis)  # (M*N, F)
+            gram += (a.conj().T @ a) * y.shape[1]
+            rhs += a.conj().T @ y.sum(axis=1)
+        if not groups or not np.all(np.isfinite(gram)) or not np.all(np.isfinite(rhs)):
+            return None
+        errors = np.linalg.lstsq(gram + 1e-12 * np.trace(gram).real / k * np.eye(k), rhs, rcond=None)[0]
+        leak_energy = data_energy = 0.0
+        for g, data in self.poses.items():
+            unit = data.direct / np.linalg.norm(data.direct)
+            leak = d @ (data.model.weights * errors)
+            leak = leak - unit * np.vdot(unit, leak)
+            data.leak = leak if np.linalg.norm(leak) > 0 else None
+            if g in groups:
+                leak_energy += float(np.vdot(leak, leak).real) * data.rows.shape[0]
+                data_energy += float(np.sum(np.abs(data.rows) ** 2))
+        return 10.0 * math.log10(max(leak_energy, 1e-300) / data_energy) if data_energy > 0 else None
 
     def _fit(self, k, groups, pivot, step_m, step_deg, base=None, bases=None, crossed=None, material=None):
         """(offset, rotation, moved wall) maximising J over these groups for wall k, moved
@@ -233,6 +385,7 @@ class CsiWallRefiner:
         s = self.settings
         base = self.walls[k] if base is None else base
         crossed = self._crossed_for(k) if crossed is None else crossed
+        doubles = self.DOUBLE_BOUNCES and not self.hidden[k]
         prepared = []
         for g in groups:
             basis = self._basis(g, k) if bases is None else bases[g]
@@ -251,7 +404,7 @@ class CsiWallRefiner:
             trial = moved_wall(offset, rotation)
             total = 0.0
             for g, rows, basis in prepared:
-                e = self._echo(self.poses[g], trial, self.world_poses[g], crossed, material)
+                e = self._echo(self.poses[g], trial, self.world_poses[g], crossed, material, doubles=doubles)
                 if e is not None:
                     total += self._explained(e[0], basis, rows)
             return total
@@ -383,7 +536,7 @@ class CsiWallRefiner:
         Returns {k: (aoa_rad, delay_s) of the fitted echo, or None when not confirmed}."""
         data, pose = self.poses[g], self.world_poses[g]
         total = float(np.sum(np.abs(data.rows) ** 2))
-        fixed = [data.direct]
+        fixed = [data.direct] + ([] if data.leak is None else [data.leak])
         for j in confirmed:
             e = self._echo(data, self.walls[j], pose, self._crossed_for(j, set(confirmed)))
             if e is not None:
@@ -436,7 +589,7 @@ class CsiWallRefiner:
         pose, a list of bools for `points`)."""
         data, pose = self.poses[g], self.world_poses[g]
         total = float(np.sum(np.abs(data.rows) ** 2))
-        cols = [data.direct]
+        cols = [data.direct] + ([] if data.leak is None else [data.leak])
         echoes = {}
         for k in candidates:
             e = self._echo(data, self.walls[k], pose, self._crossed_for(k))
