@@ -418,8 +418,9 @@ class WallFusion:
 
     #: the CSI fits model what the TX chains' errors leave of the direct path, estimated once
     #: per map on the first map's walls (CsiWallRefiner.estimate_direct_leak): off, because
-    #: the map is not better for it yet, though the fits are (docs/mapping.md, "Two errors of
-    #: the echo model")
+    #: the map is not better for it yet, though the fits on the true map are, and on the
+    #: fusion's own map the estimate is right only where the leak is strong (docs/mapping.md,
+    #: "Two errors of the echo model")
     ESTIMATE_DIRECT_LEAK = False
     #: the sequential pose pass aligns an echo with its predecessors' echoes this close
     SEQUENTIAL_REACH_M = 4.0

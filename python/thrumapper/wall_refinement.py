@@ -86,8 +86,8 @@ class CsiWallRefiner:
     """
 
     #: model the double bounces between facing line-of-sight walls (_double_echoes): off,
-    #: because the fusion's map is not better for it yet, though the fits are (docs/mapping.md,
-    #: "Two errors of the echo model")
+    #: because the fusion's map is not better for it yet, though the fits on the true map
+    #: are (docs/mapping.md, "Two errors of the echo model")
     DOUBLE_BOUNCES = False
     #: walls whose normals are within this of opposite face each other
     DOUBLE_FACING_DEG = 20.0
