@@ -49,6 +49,35 @@ def straight_survey_data(walls, end_x_m, step_m):
     return data
 
 
+def corridor_survey(end_x_m, physics, impairments, seed=None):
+    """A corridor 2 m wide (plasterboard faces at y = -1 and +1) surveyed down its axis from
+    x = 0 to end_x_m, a pose a metre, with these physics and impairments: (scene, SimResult,
+    a refiner holding every pose, the two faces as walls south then north)."""
+    data = straight_survey_data([
+        {"name": "south", "segment": [[-6.0, -1.075], [8.0, -1.075]], "material": "plasterboard"},
+        {"name": "north", "segment": [[-6.0, 1.075], [8.0, 1.075]], "material": "plasterboard"}], end_x_m, 1.0)
+    data["physics"] = physics
+    data["impairments"] = impairments
+    if seed is not None:
+        data["seed"] = seed
+    sc = scene.load_scene(data)
+    res = building_sim.simulate_survey(sc, progress=False)
+    faces = [dict(wall(-1.0), t0=-20.0, t1=20.0), dict(wall(1.0, robot_side=-1.0), t0=-20.0, t1=20.0)]
+    return sc, res, refiner_for(res, groups=range(sc.poses.shape[0])), faces
+
+
+def face_delay_errors(refiner, faces, poses):
+    """Each face fitted at each pose (refiner.fit_echo, the map set beforehand) less its
+    geometric specular delay from that pose, seconds: (poses * faces,)."""
+    out = []
+    for g, pose in enumerate(poses):
+        for k, face in enumerate(faces):
+            tau_g = bistatic.specular_path(bistatic.world_to_robot(face["centre"], pose),
+                                           bistatic.rotate(face["normal"], -pose[2]), refiner.tx_c, refiner.rx_c)[1]
+            out.append(refiner.fit_echo(g, k)[1] - tau_g)
+    return np.array(out)
+
+
 def simulated(name):
     sc = scene.load_scene(scene_path(name))
     return sc, building_sim.simulate_survey(sc, progress=False)
@@ -139,14 +168,9 @@ class qa_wall_refinement(gr_unittest.TestCase):
         (second-order paths on, diffuse scatter, edges and clutter off), each wall fitted from
         its face lands on it within 0.03 ns (5 mm) at every pose; without the doubles in the
         model the same fits are 0.2 ns (3 cm or more) early, pulled toward the robot."""
-        data = straight_survey_data([
-            {"name": "south", "segment": [[-6.0, -1.075], [8.0, -1.075]], "material": "plasterboard"},
-            {"name": "north", "segment": [[-6.0, 1.075], [8.0, 1.075]], "material": "plasterboard"}], 2.0, 1.0)
-        data["physics"] = {"diffuse": False, "edges": False, "clutter": False}
-        data["impairments"] = {"system_delay_s": 31.0e-9, "system_delay_known": True}  # no chain errors to calibrate
-        sc = scene.load_scene(data)
-        res = building_sim.simulate_survey(sc, progress=False)
-        refiner = refiner_for(res, groups=range(sc.poses.shape[0]))
+        sc, _, refiner, faces = corridor_survey(
+            2.0, {"diffuse": False, "edges": False, "clutter": False},
+            {"system_delay_s": 31.0e-9, "system_delay_known": True})  # no chain errors to calibrate
         model = refiner.poses[0].model
         path = bistatic.double_bounce_path([0.0, -1.0], [0.0, 1.0], [0.0, 1.0], [0.0, -1.0], refiner.tx_c, refiner.rx_c)
         self.assertAlmostEqual(path[1] * 1e9, math.hypot(0.7, 4.0) / bistatic.SPEED_OF_LIGHT_M_S * 1e9, places=3)
@@ -156,20 +180,13 @@ class qa_wall_refinement(gr_unittest.TestCase):
                                     path[0], path[1])
         self.assertLess(abs(tau - path[1]), 0.05e-9, (tau * 1e9, path[1] * 1e9))
         self.assertLess(abs(math.degrees(math.remainder(theta - path[0], 2 * math.pi))), 1.0)
-        faces = [dict(wall(-1.0), t0=-20.0, t1=20.0), dict(wall(1.0, robot_side=-1.0), t0=-20.0, t1=20.0)]
         errors = {}
         for modelled in (True, False):
             refiner.DOUBLE_BOUNCES = modelled  # (off by default: docs/mapping.md)
             refiner.set_map(faces, sc.poses, [[] for _ in sc.poses], [False, False])
-            errors[modelled] = []
-            for g, pose in enumerate(sc.poses):
-                for k, face in enumerate(faces):
-                    point_r = bistatic.world_to_robot(face["centre"], pose)
-                    normal_r = bistatic.rotate(face["normal"], -pose[2])
-                    tau_g = bistatic.specular_path(point_r, normal_r, refiner.tx_c, refiner.rx_c)[1]
-                    errors[modelled].append(refiner.fit_echo(g, k)[1] - tau_g)
-        self.assertLess(np.max(np.abs(errors[True])), 0.03e-9, np.round(np.array(errors[True]) * 1e9, 3))
-        self.assertLess(np.max(errors[False]), -0.2e-9, np.round(np.array(errors[False]) * 1e9, 3))
+            errors[modelled] = face_delay_errors(refiner, faces, sc.poses)
+        self.assertLess(np.max(np.abs(errors[True])), 0.03e-9, np.round(errors[True] * 1e9, 3))
+        self.assertLess(np.max(errors[False]), -0.2e-9, np.round(errors[False] * 1e9, 3))
 
     def test_direct_path_leak_estimated(self):
         """The TX chains' gain and phase errors (0.2 dB, 3 deg here; the survey calibrates
@@ -180,31 +197,14 @@ class qa_wall_refinement(gr_unittest.TestCase):
         the elements' direct paths with the drawn chain gains a_k, to a correlation of 0.999 and
         2 % in size. With it modelled the walls' fits land on their faces within 0.02 ns (3 mm);
         without it they are 0.4-0.7 ns (7-11 cm) off."""
-        data = straight_survey_data([
-            {"name": "south", "segment": [[-6.0, -1.075], [8.0, -1.075]], "material": "plasterboard"},
-            {"name": "north", "segment": [[-6.0, 1.075], [8.0, 1.075]], "material": "plasterboard"}], 4.0, 1.0)
-        data["physics"] = {"diffuse": False, "edges": False, "clutter": False, "second_order": False}
-        data["impairments"] = {"system_delay_s": 31.0e-9, "system_delay_known": True,
-                               "tx": {"gain_db_std": 0.2, "phase_deg_std": 3.0}}
-        data["seed"] = 11
-        sc = scene.load_scene(data)
-        res = building_sim.simulate_survey(sc, progress=False)
-        refiner = refiner_for(res, groups=range(sc.poses.shape[0]))
-        faces = [dict(wall(-1.0), t0=-20.0, t1=20.0), dict(wall(1.0, robot_side=-1.0), t0=-20.0, t1=20.0)]
+        sc, res, refiner, faces = corridor_survey(
+            4.0, {"diffuse": False, "edges": False, "clutter": False, "second_order": False},
+            {"system_delay_s": 31.0e-9, "system_delay_known": True, "tx": {"gain_db_std": 0.2, "phase_deg_std": 3.0}},
+            seed=11)
         refiner.set_map(faces, sc.poses, [[] for _ in sc.poses], [False, False])
-
-        def fit_errors():
-            out = []
-            for g, pose in enumerate(sc.poses):
-                for k, face in enumerate(faces):
-                    tau_g = bistatic.specular_path(bistatic.world_to_robot(face["centre"], pose),
-                                                   bistatic.rotate(face["normal"], -pose[2]), refiner.tx_c, refiner.rx_c)[1]
-                    out.append(refiner.fit_echo(g, k)[1] - tau_g)
-            return np.array(out)
-
-        without = fit_errors()
+        without = face_delay_errors(refiner, faces, sc.poses)
         leak_db = refiner.estimate_direct_leak()
-        with_leak = fit_errors()
+        with_leak = face_delay_errors(refiner, faces, sc.poses)
         # the simulator's leak: its direct paths per element, the drawn TX chain gains
         direct_only = dict(sc.physics, reflections=False, second_order=False)
         per_element = building_sim.channel_matrix_at_pose(dataclasses.replace(sc, physics=direct_only),

@@ -77,6 +77,11 @@ class _Pose:
         self.direct = direct  # (M*N,) the direct path, cancelled from the data
         self.leak = None  # (M*N,) what the TX chains' errors leave of it (estimate_direct_leak)
 
+    def cancelled(self):
+        """The columns of the direct path the data lacks or that the fits project out: the
+        nominal one, and its leak when estimated."""
+        return [self.direct] if self.leak is None else [self.direct, self.leak]
+
 
 class CsiWallRefiner:
     """Fits a WallFusion map's walls on each pose's CSI (see the module's description).
@@ -293,9 +298,7 @@ class CsiWallRefiner:
                        abs(delay - d) < s.explained_delay_s for a, d in explained)
             if not near:
                 cols.append(self._far_field(aoa, delay))
-        cols.append(data.direct)
-        if data.leak is not None:
-            cols.append(data.leak)
+        cols.extend(data.cancelled())
         return self._orthonormal(cols)
 
     def _element_directs(self):
@@ -321,14 +324,8 @@ class CsiWallRefiner:
                 pivot = self._pivot(w, pose)
             except bistatic.GeometryError:
                 continue
-            c, s_ = math.cos(step_rad), math.sin(step_rad)
-            rot = np.array([[c, -s_], [s_, c]])
-            moved = dict(w, centre=w["centre"] + step_m * w["normal"])
-            normal = rot @ w["normal"]
-            turned = dict(w, centre=pivot + rot @ (w["centre"] - pivot), normal=normal,
-                          direction=np.array([-normal[1], normal[0]]))
-            for trial in (moved, turned):
-                e = self._echo(data, trial, pose, crossed)
+            for offset, rotation in ((step_m, 0.0), (0.0, step_rad)):
+                e = self._echo(data, _moved_wall(w, pivot, offset, rotation), pose, crossed)
                 if e is not None:
                     cols.append((e[0] - base[0])[:, None])
         return self._orthonormal(list(np.hstack(cols).T)) if len(cols) > 1 else basis
@@ -391,17 +388,8 @@ class CsiWallRefiner:
             basis = self._basis(g, k) if bases is None else bases[g]
             prepared.append((g, self._project_out(self.poses[g].rows.T, basis).T, basis))
 
-        def moved_wall(offset, rotation):
-            c, s_ = math.cos(rotation), math.sin(rotation)
-            rot = np.array([[c, -s_], [s_, c]])
-            normal = rot @ base["normal"]
-            direction = np.array([-normal[1], normal[0]])
-            centre = pivot + rot @ (base["centre"] - pivot) + offset * normal
-            # rotated about the pivot, the old extents t0, t1 still apply
-            return dict(base, centre=centre, normal=normal, direction=direction)
-
         def objective(offset, rotation):
-            trial = moved_wall(offset, rotation)
+            trial = _moved_wall(base, pivot, offset, rotation)
             total = 0.0
             for g, rows, basis in prepared:
                 e = self._echo(self.poses[g], trial, self.world_poses[g], crossed, material, doubles=doubles)
@@ -412,7 +400,7 @@ class CsiWallRefiner:
         offset, rotation = _quadratic_search(
             objective, s.max_offset_m, math.radians(s.max_rotation_deg), step_m, math.radians(step_deg),
             s.final_offset_step_m, math.radians(s.final_rotation_step_deg))
-        return offset, rotation, moved_wall(offset, rotation)
+        return offset, rotation, _moved_wall(base, pivot, offset, rotation)
 
     def sees(self, g, k):
         return g in self.poses and self._echo(self.poses[g], self.walls[k], self.world_poses[g],
@@ -536,7 +524,7 @@ class CsiWallRefiner:
         Returns {k: (aoa_rad, delay_s) of the fitted echo, or None when not confirmed}."""
         data, pose = self.poses[g], self.world_poses[g]
         total = float(np.sum(np.abs(data.rows) ** 2))
-        fixed = [data.direct] + ([] if data.leak is None else [data.leak])
+        fixed = data.cancelled()
         for j in confirmed:
             e = self._echo(data, self.walls[j], pose, self._crossed_for(j, set(confirmed)))
             if e is not None:
@@ -589,7 +577,7 @@ class CsiWallRefiner:
         pose, a list of bools for `points`)."""
         data, pose = self.poses[g], self.world_poses[g]
         total = float(np.sum(np.abs(data.rows) ** 2))
-        cols = [data.direct] + ([] if data.leak is None else [data.leak])
+        cols = data.cancelled()
         echoes = {}
         for k in candidates:
             e = self._echo(data, self.walls[k], pose, self._crossed_for(k))
@@ -814,6 +802,17 @@ class CsiWallRefiner:
                     scores[t, i] += self._explained(echo, basis, residual)
                     noise[t, i] += energy / max(dims, 1)
         return scores, noise, total
+
+
+def _moved_wall(base, pivot, offset, rotation):
+    """Wall dict `base` turned by `rotation` about `pivot` (world) and then moved `offset`
+    along its new normal; rotated about the pivot, the old extents t0, t1 still apply."""
+    c, s_ = math.cos(rotation), math.sin(rotation)
+    rot = np.array([[c, -s_], [s_, c]])
+    normal = rot @ base["normal"]
+    direction = np.array([-normal[1], normal[0]])
+    centre = pivot + rot @ (base["centre"] - pivot) + offset * normal
+    return dict(base, centre=centre, normal=normal, direction=direction)
 
 
 def _quadratic_search(f, max_x, max_y, step_x, step_y, final_x, final_y):
