@@ -310,6 +310,50 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, [side]), {0: 0, 1: 0, 2: 0})
         self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, []), {})
 
+    def test_wall_across_farther_out_leaves_the_side_wall_search_its_poses(self):
+        """The side-wall search looks, from a line-of-sight wall 1 m south of the track, for a
+        wall of the same delay across the track. A mapped wall across 3.3 m out (a room's
+        exterior wall seen where the corridor wall in front of it is not mapped) echoes
+        2*(sqrt(3.3^2 + 0.35^2) - sqrt(1^2 + 0.35^2))/c = 15.1 ns later: it does not take the
+        search's poses. A wall across 1.1 m out (about the same delay), or one nearer than
+        the partner would stand, does."""
+        fusion = WallFusion(RADAR, exact_settings())
+        half_b = 0.5 * float(np.hypot(*(RX - TX)))
+        late_s = 2.0 * (math.hypot(3.3, half_b) - math.hypot(1.0, half_b)) / C
+        self.assertAlmostEqual(late_s * 1e9, 15.1, delta=0.1)
+
+        def facing_track(y):
+            normal = np.array([0.0, -1.0 if y > 0 else 1.0])
+            return {"centre": np.array([5.0, y]), "normal": normal, "direction": np.array([normal[1], -normal[0]]),
+                    "t0": -5.0, "t1": 5.0}
+
+        south, pose = facing_track(-1.0), np.array([5.0, 0.0, 0.0])
+        self.assertFalse(fusion._partner_echo(facing_track(3.3), south, pose))
+        self.assertTrue(fusion._partner_echo(facing_track(1.1), south, pose))
+        self.assertTrue(fusion._partner_echo(facing_track(0.6), south, pose))
+
+    def test_line_of_sight_wall_behind_a_side_wall_is_hidden(self):
+        """A wall mapped line of sight at y = 3.3 because no corridor wall was mapped in front
+        of it turns hidden once a side wall found on the CSI stands along y = 1.0 between it
+        and the track (its echoes' legs cross it); a wall beside the side wall's stretch, and
+        one south of the track, stay line of sight."""
+        fusion = WallFusion(RADAR, exact_settings())
+        poses = np.column_stack((np.arange(0.0, 10.01, 0.5), np.zeros(21), np.zeros(21)))
+        group, pw, walls = [], [], []
+        for x0, x1, y in ((1.0, 4.0, 3.3), (7.0, 10.0, 3.3), (1.0, 4.0, -1.0)):
+            members = []
+            for g, pose in enumerate(poses):
+                if x0 <= pose[0] <= x1:
+                    members.append(len(pw))
+                    group.append(g)
+                    pw.append([pose[0] + 0.35, y])
+            walls.append({"members": np.array(members)})
+        state = {"group": np.array(group), "pw": np.array(pw, float)}
+        side = {"centre": np.array([2.5, 1.0]), "normal": np.array([0.0, -1.0]), "direction": np.array([-1.0, 0.0]),
+                "t0": -2.5, "t1": 2.5}
+        self.assertEqual(fusion._behind_side_walls(walls, [LOS, LOS, LOS], state, poses, [side]), {0})
+        self.assertEqual(fusion._behind_side_walls(walls, [LOS, LOS, LOS], state, poses, []), set())
+
     def test_corner_is_a_landmark_not_a_wall(self):
         """A dihedral corner ahead (the §4.4–4.5 geometry: the wall meets an end wall): its
         retro-reflection is a corner within 0.3 m of the apex, and the wall beside it stays on

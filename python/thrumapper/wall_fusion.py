@@ -521,6 +521,11 @@ class WallFusion:
     SIDE_WALL_MAX_M = 3.0
     SIDE_WALL_STEP_M = 0.025
     SIDE_WALL_COHERENT_S = 1.5e-9
+    #: a mapped wall across takes a pose from the search only when it answers no later than
+    #: this after the wall searched along (_partner_echo; None: any wall across takes it)
+    SIDE_WALL_BLOCK_S = 3e-9
+    #: a line-of-sight wall most of whose echoes cross a side wall is hidden (_behind_side_walls)
+    SIDE_WALLS_HIDE = True
     SIDE_WALL_MIN_SHARE = 0.2
     #: a hidden wall this near a side wall's line, along it, is that wall (_absorbed_by_side_walls)
     SIDE_WALL_ABSORB_M = 0.5
@@ -1686,7 +1691,7 @@ class WallFusion:
             taken = [f for f in found if float(f["normal"] @ -w["normal"]) > cos_across]
             free = [g for g in sorted(self.refiner.poses)
                     if g < len(poses) and self.refiner.sees(g, k)
-                    and not any(self.refiner.sees(g, j) for j in across)
+                    and not any(self.refiner.sees(g, j) and self._partner_echo(walls[j], w, poses[g]) for j in across)
                     and not any(g in f["groups"] for f in taken)]
             runs, run = [], []
             for g in free:
@@ -1769,6 +1774,41 @@ class WallFusion:
                               "t0": ts[lo] - zones[lo], "t1": ts[hi] + zones[hi], "corners": [], "poses": len(run),
                               "groups": set(run), "confidence": float(0.9 - 0.4 / max(ratio, 1.0))})
         return found
+
+    def _partner_echo(self, wall, along, pose):
+        """Whether `wall`, across the track from wall `along`, answers at `pose` no later than
+        SIDE_WALL_BLOCK_S after it: the one-delay partner the side-wall search looks for, or a
+        wall in front of where that partner would stand. A wall across farther out (a room's
+        exterior wall seen where the corridor wall in front of it is not mapped) does not
+        take its place."""
+        if self.SIDE_WALL_BLOCK_S is None:
+            return True
+        delays = []
+        for w in (wall, along):
+            try:
+                _, delay, _ = bistatic.specular_path(bistatic.world_to_robot(w["centre"], pose),
+                                                     bistatic.rotate(w["normal"], -pose[2]), self.tx_c, self.rx_c)
+            except bistatic.GeometryError:
+                return True
+            delays.append(delay)
+        return delays[0] <= delays[1] + self.SIDE_WALL_BLOCK_S
+
+    def _behind_side_walls(self, walls, wall_cls, state, poses, side_walls):
+        """Line-of-sight walls most of whose echoes' legs cross a side wall: the class rule of
+        _classify applied to the walls the side-wall search found after the mapping rounds (a
+        room's exterior wall seen where JADE did not report the corridor wall in front)."""
+        if not side_walls or not self.SIDE_WALLS_HIDE:
+            return set()
+        a, b = self._segments(side_walls)
+        out = set()
+        for k, w in enumerate(walls):
+            if wall_cls[k] != LOS:
+                continue
+            members = w["members"]
+            tx, rx = self._legs_from(poses, state["group"][members])
+            if np.mean(np.any(self._legs_cross(tx, rx, state["pw"][members], a, b), axis=1)) > 0.5:
+                out.add(k)
+        return out
 
     def _absorbed_by_side_walls(self, walls, wall_cls, side_walls):
         """{hidden wall index: side wall index} for the hidden walls within SIDE_WALL_ABSORB_M
@@ -2413,6 +2453,9 @@ class WallFusion:
         walls = []
         detections = {c: [] for c in CLASSES}
         echoes = {c: [] for c in CLASSES}
+        behind = self._behind_side_walls(walls_in, wall_cls, state, poses, side_walls)
+        if behind:
+            wall_cls = [HIDDEN if k in behind else c for k, c in enumerate(wall_cls)]
         # a hidden wall just behind (or before) a side wall, along it, is that wall's echoes
         # placed off by the estimator's mixture of the two walls of one delay: they become the
         # side wall's detections, and the hidden wall goes (after the gaps are bridged, which
