@@ -90,9 +90,16 @@ class CsiWallRefiner:
     scene.Material (None: a perfect conductor).
     """
 
-    #: model the double bounces between facing line-of-sight walls (_double_echoes): off,
-    #: because the fusion's map is not better for it yet, though the fits on the true map
-    #: are (docs/mapping.md, "Two errors of the echo model")
+    #: the double bounces between facing line-of-sight walls (_double_echoes; docs/mapping.md,
+    #: "Two errors of the echo model" and "The double bounces again"): "free_gain" projects
+    #: each pair's out with a complex gain of its own (both orders summed at the model's
+    #: relative amplitudes: for parallel walls their paths are equally long wherever the
+    #: robot stands between them), which holds when the facing wall is mapped a few
+    #: centimetres off; "coherent" adds them to the fitted wall's own echo at the model's
+    #: amplitude and phase, exact on an exact map, but 2 cm of error in the facing wall turns
+    #: them by 0.65 of a cycle and the fit goes 0.9 ns wrong. False (the default) leaves them
+    #: out: 3-6 cm of bias and 1.2 deg of turn in the corridor walls' fits, but the fusion's
+    #: maps were not better with either mode on the surveys measured
     DOUBLE_BOUNCES = False
     #: walls whose normals are within this of opposite face each other
     DOUBLE_FACING_DEG = 20.0
@@ -220,6 +227,11 @@ class CsiWallRefiner:
                                 path[0], path[1], j))
         return out
 
+    @property
+    def _coherent_doubles(self):
+        """DOUBLE_BOUNCES "coherent" (True, as it was named before "free_gain" came)."""
+        return self.DOUBLE_BOUNCES is True or self.DOUBLE_BOUNCES == "coherent"
+
     def _doubles(self, g):
         """Every double bounce between the mapped line-of-sight walls at group g, each pair
         once (both orders): [((M*N,) CSI, aoa_rad, delay_s, i, j)]; cached until set_map."""
@@ -289,10 +301,14 @@ class CsiWallRefiner:
             explained.append((e[1], e[2]))
             if j not in excluded:
                 cols.append(e[0])
+        pairs = {}
         for v, aoa, delay, i, j in self._doubles(g):
             explained.append((aoa, delay))  # JADE's path of it is the double, not another thing
-            if i not in excluded and j not in excluded:
-                cols.append(v)  # (a double of an excluded wall is part of that wall's echo)
+            if not self._coherent_doubles:
+                pairs[(i, j)] = pairs.get((i, j), 0) + v  # one column a pair, its gain free
+            elif i not in excluded and j not in excluded:
+                cols.append(v)  # (a coherent double of an excluded wall is part of that wall's echo)
+        cols.extend(pairs.values())
         for aoa, delay in self.group_paths[g] if unexplained_paths and g < len(self.group_paths) else ():
             near = any(abs(math.remainder(aoa - a, 2.0 * math.pi)) < math.radians(s.explained_angle_deg) and
                        abs(delay - d) < s.explained_delay_s for a, d in explained)
@@ -382,7 +398,7 @@ class CsiWallRefiner:
         s = self.settings
         base = self.walls[k] if base is None else base
         crossed = self._crossed_for(k) if crossed is None else crossed
-        doubles = self.DOUBLE_BOUNCES and not self.hidden[k]
+        doubles = self._coherent_doubles and not self.hidden[k]
         prepared = []
         for g in groups:
             basis = self._basis(g, k) if bases is None else bases[g]
