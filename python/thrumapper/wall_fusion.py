@@ -461,6 +461,13 @@ class WallFusion:
     ADJUSTMENT_MAX_NFEV = 200
     ADJUSTMENT_REWEIGHTS = 6
     ADJUSTMENT_CAUCHY = 2.0
+    #: the pose adjustment's model of the CSI fits' runs of bias along a line-of-sight wall
+    #: (with the CSI): their size, how far along the wall they hold, the knots' spacing
+    #: (_adjust_poses). Off (0: the fits taken as white noise): with 5 cm the office maps
+    #: settle elsewhere, not better (docs/mapping.md, "Where the office floors' error...")
+    BIAS_RUN_SIGMA_M = 0.0
+    BIAS_RUN_M = 2.0
+    BIAS_KNOT_M = 1.0
     #: the odometry's scale error and heading drift are estimated only when the data set them
     #: this many standard errors away from none
     SYSTEMATIC_SIGNIFICANCE = 2.0
@@ -2204,13 +2211,40 @@ class WallFusion:
             ax_normals.append(normal)
             ax_lines.append(float(np.mean(pw @ normal)))
         ax_normals = np.array(ax_normals).reshape(-1, 2)
+        # the per-pose fits of one wall err in runs a few metres long (doors, partitions and
+        # cabinets behind it, the other wall's echo): counted as white noise those runs would
+        # bend the track after them. Each line carries a bias along it (knots every
+        # BIAS_KNOT_M, an AR(1) prior of BIAS_RUN_SIGMA_M correlated over BIAS_RUN_M), which
+        # makes the adjustment the generalised least squares of such errors
+        # (benchmarks/trajectory_bound.py)
+        knot_w = np.zeros((len(obs_w), 2))
+        knot_i = np.zeros((len(obs_w), 2), int)
+        knot_first, n_bias = [], 0
+        if self._fits_on_csi and self.BIAS_RUN_SIGMA_M > 0 and obs_w:
+            pw0, _ = self._to_world(points_r[obs_w], normals_r[obs_w], poses, group[obs_w])
+            slots = np.array([wall_slot[labels[i]] for i in obs_w], int)
+            for j, k in enumerate(line_rep):
+                mine = np.flatnonzero(slots == j)
+                along = pw0[mine] @ walls[k]["direction"]
+                lo = float(along.min())
+                count = int(math.floor((float(along.max()) - lo) / self.BIAS_KNOT_M)) + 2
+                u = (along - lo) / self.BIAS_KNOT_M
+                i0 = np.minimum(np.floor(u).astype(int), count - 2)
+                knot_i[mine] = n_bias + np.column_stack((i0, i0 + 1))
+                knot_w[mine] = np.column_stack((1.0 - (u - i0), u - i0))
+                knot_first.append((n_bias, count))
+                n_bias += count
+        rho = math.exp(-self.BIAS_KNOT_M / self.BIAS_RUN_M)
+        bias_step_sigma = self.BIAS_RUN_SIGMA_M * math.sqrt(1.0 - rho ** 2)
         # the odometry's systematic errors, a scale factor and a heading drift per metre, are
         # estimated with the poses (white per-step noise alone would let a steady drift bend
         # the map to follow it)
         x0 = np.concatenate([poses[1:].reshape(-1),
                              np.array([[math.atan2(walls[k]["normal"][1], walls[k]["normal"][0]),
                                         walls[k]["centre"] @ walls[k]["normal"]] for k in line_rep]).reshape(-1),
-                             np.array([c for c, _ in landmarks]).reshape(-1), np.array(ax_lines).reshape(-1), [1.0, 0.0]])
+                             np.array([c for c, _ in landmarks]).reshape(-1), np.array(ax_lines).reshape(-1),
+                             np.zeros(n_bias), [1.0, 0.0]])
+        n_fixed = n_pose + n_wall + n_corner + n_axial  # the knots follow
         steps = [_relative(odometry[g - 1], odometry[g]) for g in range(1, P)]
         sig_xy = np.array([max(s.odometry_scale_sigma * math.hypot(st[0], st[1]), s.odometry_position_sigma_m) for st in steps])
         # the per-step heading noise alone: the steady drift per metre is a parameter below,
@@ -2236,8 +2270,8 @@ class WallFusion:
             ps = np.vstack((first, x[:n_pose].reshape(-1, 3)))
             wl = x[n_pose:n_pose + n_wall].reshape(-1, 2)
             cr = x[n_pose + n_wall:n_pose + n_wall + n_corner].reshape(-1, 2)
-            ax = x[n_pose + n_wall + n_corner:n_pose + n_wall + n_corner + n_axial]
-            return ps, wl, cr, ax, x[-2], x[-1]
+            ax = x[n_pose + n_wall + n_corner:n_fixed]
+            return ps, wl, cr, ax, x[n_fixed:n_fixed + n_bias], x[-2], x[-1]
 
         steps_arr = np.array(steps).reshape(-1, 3)
         step_len = np.hypot(steps_arr[:, 0], steps_arr[:, 1])
@@ -2246,7 +2280,7 @@ class WallFusion:
         prior = [sigma_scale, sigma_drift]
 
         def residuals(x):
-            ps, wl, cr, ax, scale, drift = unpack(x)
+            ps, wl, cr, ax, bias, scale, drift = unpack(x)
             a, b = ps[:-1], ps[1:]
             c, s_ = np.cos(a[:, 2]), np.sin(a[:, 2])
             d = b[:, :2] - a[:, :2]
@@ -2260,7 +2294,8 @@ class WallFusion:
                 pw, nw = self._to_world(points_r[obs_w_arr], normals_r[obs_w_arr], ps, group[obs_w_arr])
                 phi = wl[slot_of, 0]
                 n_ = np.column_stack((np.cos(phi), np.sin(phi)))
-                out.extend(((np.sum(pw * n_, axis=1) - wl[slot_of, 1]) / sigma_p).tolist())
+                along_bias = np.sum(bias[knot_i] * knot_w, axis=1) if n_bias else 0.0
+                out.extend(((np.sum(pw * n_, axis=1) - wl[slot_of, 1] - along_bias) / sigma_p).tolist())
                 # the echoes' orientations tie the map's rotation to the poses' headings (the
                 # points alone leave it free along parallel walls); loosely, as the
                 # estimator's angle errors bias them
@@ -2271,9 +2306,13 @@ class WallFusion:
             if ax_g.size:
                 pw, _ = self._to_world(ax_r, np.zeros_like(ax_r), ps, ax_g)
                 out.extend(((np.sum(pw * ax_normals[ax_slot], axis=1) - ax[ax_slot]) / self.AXIAL_SIGMA_M).tolist())
+            for start, count in knot_first:  # the bias runs' AR(1) prior, line by line
+                b = bias[start:start + count]
+                out.append(b[0] / self.BIAS_RUN_SIGMA_M)
+                out.extend(((b[1:] - rho * b[:-1]) / bias_step_sigma).tolist())
             return np.array(out) * row_weights[0]
 
-        m = 3 * (P - 1) + 2 + 2 * len(obs_w) + 2 * len(obs_c) + ax_g.size
+        m = 3 * (P - 1) + 2 + 2 * len(obs_w) + 2 * len(obs_c) + ax_g.size + n_bias
         sparsity = lil_matrix((m, x0.size), dtype=int)
         row = 0
         for g in range(1, P):
@@ -2286,12 +2325,14 @@ class WallFusion:
         sparsity[row, x0.size - 2] = 1
         sparsity[row + 1, x0.size - 1] = 1
         row += 2
-        for _ in range(2):  # distances, then orientations
+        for orientations in (False, True):  # distances, then orientations
             for o, i in enumerate(obs_w):
                 g = group[i]
                 if g >= 1:
                     sparsity[row, 3 * (g - 1):3 * g] = 1
                 sparsity[row, n_pose + 2 * slot_of[o]:n_pose + 2 * slot_of[o] + 2] = 1
+                if n_bias and not orientations:
+                    sparsity[row, n_fixed + knot_i[o]] = 1
                 row += 1
         for o, (i, j) in enumerate(obs_c):
             g = group[i]
@@ -2305,6 +2346,12 @@ class WallFusion:
                 sparsity[row, 3 * (g - 1):3 * g] = 1
             sparsity[row, n_pose + n_wall + n_corner + j] = 1
             row += 1
+        for start, count in knot_first:
+            sparsity[row, n_fixed + start] = 1
+            row += 1
+            for q in range(1, count):
+                sparsity[row, n_fixed + start + q - 1:n_fixed + start + q + 1] = 1
+                row += 1
         def solve(x):
             """Cauchy weights by iterated reweighting around plain least squares: scipy's
             robust losses take hundreds of evaluations on a long pose chain and stop short of
@@ -2331,7 +2378,7 @@ class WallFusion:
         jac = solution.jac.toarray() if hasattr(solution.jac, "toarray") else np.asarray(solution.jac)
         cov_x = np.linalg.pinv(jac.T @ jac)
         sigma_fit = np.sqrt(np.maximum(np.diag(cov_x)[-2:], 0.0))
-        _, _, _, _, scale, drift = unpack(x)
+        _, _, _, _, _, scale, drift = unpack(x)
         z = np.abs(np.array([scale - 1.0, drift])) / np.maximum(sigma_fit, 1e-12)
         held = bool(np.all(z < self.SYSTEMATIC_SIGNIFICANCE))
         # a scale further from 1 than the odometry can be off is not a measurement but echoes
@@ -2342,7 +2389,7 @@ class WallFusion:
         if held or implausible:
             prior[:] = [1e-6 * prior[0], 1e-6 * prior[1] if held else prior[1]]
             x, solution = solve(x0)
-        ps, _, _, _, scale, drift = unpack(x)
+        ps, _, _, _, _, scale, drift = unpack(x)
         ps[:, 2] = _wrap(ps[:, 2])
         self._odometry_fit = {"odometry_scale": float(scale), "odometry_drift_deg_per_m": math.degrees(drift),
                               "odometry_scale_sigma": float(sigma_fit[0]),
