@@ -1698,7 +1698,7 @@ class WallFusion:
             taken = [f for f in found if float(f["normal"] @ -w["normal"]) > cos_across]
             free = [g for g in sorted(self.refiner.poses)
                     if g < len(poses) and self.refiner.sees(g, k)
-                    and not any(self.refiner.sees(g, j) and self._partner_echo(walls[j], w, poses[g]) for j in across)
+                    and not any(self._partner_echo(walls[j], w, poses[g]) and self.refiner.sees(g, j) for j in across)
                     and not any(g in f["groups"] for f in taken)]
             runs, run = [], []
             for g in free:
