@@ -210,6 +210,9 @@ class qa_wall_refinement(gr_unittest.TestCase):
             self.assertLess(np.max(errors[False]), -0.35e-9, (shift_m, errors))
             if shift_m == 0.02:
                 self.assertGreater(np.min(np.abs(errors["coherent"])), 0.5e-9, errors)
+        refiner.DOUBLE_BOUNCES = "free-gain"  # misspelt: refused, not taken for a mode
+        with self.assertRaisesRegex(ValueError, "DOUBLE_BOUNCES.*free-gain"):
+            refiner.set_map(faces, sc.poses, [[] for _ in sc.poses], [False, False])
 
     def test_direct_path_leak_estimated(self):
         """The TX chains' gain and phase errors (0.2 dB, 3 deg here; the survey calibrates

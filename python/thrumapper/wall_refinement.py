@@ -258,6 +258,10 @@ class CsiWallRefiner:
         """The map the fits work against: wall dicts (centre, normal, direction, t0, t1;
         world), (P, 3) world poses of the groups, per group JADE's paths [(aoa_rad, delay_s),
         ...], and per wall whether it is hidden (its echoes cross a line-of-sight wall)."""
+        if self.DOUBLE_BOUNCES not in (False, None, True, "coherent", "free_gain"):
+            # a misspelt mode would otherwise be read as "free_gain"
+            raise ValueError(f"DOUBLE_BOUNCES: expected False, \"coherent\" or \"free_gain\", "
+                             f"got {self.DOUBLE_BOUNCES!r}")
         self.walls = [dict(w) for w in walls]
         self.world_poses = np.asarray(poses, float).reshape(-1, 3)
         self.group_paths = group_paths
