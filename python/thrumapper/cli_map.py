@@ -113,8 +113,9 @@ def jade_settings(paths=8, stages=1, max_delay_s=60e-9, angles=360, delays=240):
 def map_survey(survey, fusion_settings=None, settings=None, system_delay_s=None, progress=None, timings=None,
                refine_on_csi=True):
     """The whole chain on a read survey: RX calibration, JADE, wall fusion. Returns
-    (FusedMap, info dict). The wall model comes from the survey when it has one, overriding
-    fusion_settings.material."""
+    (FusedMap, info dict; info["fusion"] is the WallFusion, its CSI refiner holding the last
+    map, for scripts that go on from it). The wall model comes from the survey when it has
+    one, overriding fusion_settings.material."""
     from . import jade_pipeline, rx_calibration
     from .wall_fusion import FusionSettings, RadarGeometry, WallFusion
 
@@ -154,6 +155,7 @@ def map_survey(survey, fusion_settings=None, settings=None, system_delay_s=None,
     timings["fusion_s"] = time.perf_counter() - started
     fused.stats["timings"] = dict(timings)
     fused.stats.update({k: v for k, v in info.items() if isinstance(v, (str, int, float))})
+    info["fusion"] = fusion
     return fused, info
 
 
