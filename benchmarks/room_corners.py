@@ -13,8 +13,8 @@ specular echo (-72.6 against -73.5 dB at x = 2 m) and arrives 2.5 ns after it, 1
 
 For each hidden wall of a map (longer than 2 m), hypotheses A every 2.5 cm along its line,
 out to 2 m past its ends, are scored on each pose's CSI with the map's walls and the direct
-path projected out (CsiWallRefiner._residuals), the corridor wall crossed twice modelled by
-its insertion transmission. The two faces of a partition are told apart by the side the
+path projected out, the corridor wall crossed twice modelled by its insertion transmission
+(CsiWallRefiner.room_corner_picks). The two faces of a partition are told apart by the side the
 poses are on. Per pose the best hypothesis is kept when it captures SIGNIFICANCE times what
 white noise would; a corner shows as a run of poses whose best hypothesis stays put (a wall's
 residue slides with the robot): at least 4 poses spanning 0.6 m of travel whose picks lie
@@ -31,7 +31,6 @@ import argparse
 import contextlib
 import copy
 import io
-import math
 import os
 import sys
 import time
@@ -44,7 +43,6 @@ from gnuradio.thrumapper.wall_fusion import MapWall
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCENES = os.path.join(HERE, "..", "examples", "scenes")
-C = 299792458.0
 SIGNIFICANCE = 20.0
 MAX_SLOPE = 0.25
 STEP_M = 0.025
@@ -55,42 +53,19 @@ MIN_TRAVEL_M = 0.6
 MERGE_M = 0.5
 
 
-def corner_picks(refiner, wall, side, residuals):
-    """Per pose, the best hypothesis on wall's line for the partition face facing
-    side * the wall's direction: rows (pose's place along the wall, hypothesis t, J / noise)."""
-    tx = np.asarray(refiner.radar.tx_elements_m, float)
-    rx = np.asarray(refiner.radar.rx_elements_m, float)
-    wavenumbers = 2.0 * np.pi * refiner.freqs_hz / C
-    wavelengths = C / refiner.freqs_hz
+def corner_picks(refiner, wall, side, groups):
+    """Per pose, the best hypothesis on wall's line (a MapWall) for the partition face looking
+    along side * the wall's direction (CsiWallRefiner.room_corner_picks), kept when it
+    captures SIGNIFICANCE times what white noise would: rows (the arrays' midpoint's place
+    along the wall, hypothesis t, J / noise)."""
     u = (wall.end_m - wall.start_m) / wall.length_m
+    line = {"centre": wall.start_m, "normal": wall.normal, "direction": u}
     ts = np.arange(-BEYOND_ENDS_M, wall.length_m + BEYOND_ENDS_M, STEP_M)
-    points = wall.start_m[None, :] + ts[:, None] * u[None, :]
     rows = []
-    for g, data, pose, basis, residual, energy, dims in residuals:
-        middle = bistatic.robot_to_world(0.5 * (refiner.tx_c + refiner.rx_c), pose)
-        rel = middle[None, :] - points
-        distance = np.hypot(*rel.T)
-        cos_normal = (rel @ wall.normal) / distance
-        # in front of both faces, within the scenes' truth range and incidence, not end-on
-        seen = ((cos_normal > math.cos(math.radians(75))) & (cos_normal < math.cos(math.radians(8))) &
-                ((rel @ (side * u)) / distance > math.cos(math.radians(80))) & (distance < 8.0))
-        h = np.flatnonzero(seen)
-        if h.size < 3:
-            continue
-        apex_r = np.array([bistatic.world_to_robot(p, pose) for p in points[h]])
-        length = np.linalg.norm(tx[None, :, None, :] + rx[None, None, :, :] - 2.0 * apex_r[:, None, None, :], axis=3)
-        echo = np.einsum("k,hkmn->hmn", data.model.weights,
-                         np.exp(-1j * length[..., None] * wavenumbers) / length[..., None]) * wavelengths * refiner._sys
-        echo = echo * (data.model.coefficients(refiner.material, cos_normal[h], 1) ** 2)[:, None, :]
-        columns = echo.reshape(h.size, -1).T
-        if basis is not None:
-            columns = columns - basis @ (basis.conj().T @ columns)
-        captured = np.sum(np.abs(residual @ columns.conj()) ** 2, axis=0) / \
-            np.maximum(np.sum(np.abs(columns) ** 2, axis=0), 1e-300)
-        i = int(np.argmax(captured))
-        noise = energy / max(dims, 1)
-        if 0 < i < h.size - 1 and captured[i] > SIGNIFICANCE * noise:
-            rows.append((float((middle - wall.start_m) @ u), float(ts[h[i]]), captured[i] / noise))
+    for g, t, captured, noise in refiner.room_corner_picks(line, ts, groups, side):
+        if captured > SIGNIFICANCE * noise:
+            middle = bistatic.robot_to_world(0.5 * (refiner.tx_c + refiner.rx_c), refiner.world_poses[g])
+            rows.append((float((middle - wall.start_m) @ u), t, captured / noise))
     return np.array(rows, float).reshape(-1, 3)
 
 
@@ -175,14 +150,14 @@ def main(argv=None):
             fused, info = cli_map.map_survey(read_survey(meta), system_delay_s=31e-9)
             refiner = info["fusion"].refiner
             truth_corners = np.array([c["position"] for c in evaluation.load_map(truth).corners]).reshape(-1, 2)
-            residuals = refiner._residuals(sorted(refiner.poses))
+            groups = sorted(refiner.poses)
             corners, errors = [], []
             for wall in fused.walls:
                 if wall.cls != "hidden" or wall.length_m < 2.0:
                     continue
                 u = (wall.end_m - wall.start_m) / wall.length_m
                 for side in (1, -1):
-                    for t, poses, travel, slope, ratio in runs_that_stay(corner_picks(refiner, wall, side, residuals)):
+                    for t, poses, travel, slope, ratio in runs_that_stay(corner_picks(refiner, wall, side, groups)):
                         point = wall.start_m + t * u
                         error = float(np.hypot(*(truth_corners - point).T).min()) if truth_corners.size else float("nan")
                         corners.append((point, wall, ratio))

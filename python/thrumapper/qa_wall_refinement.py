@@ -738,6 +738,45 @@ class qa_wall_refinement(gr_unittest.TestCase):
         twin, real = refiner.twin_scores(0, 0, 1)
         self.assertGreater(real, 1.2 * twin, (real, twin))
 
+    def test_room_corner_placed_on_the_csi(self):
+        """A room alone behind a plasterboard corridor wall (faces at y = -1.0 and -4.675, both
+        0.15 m plasterboard), a stud partition 0.15 m thick at x = 4: the dihedral where its
+        west face meets the back wall has its apex at A = (3.925, -4.675). Its two reflections make
+        a point reflection through A, so the simulator's corner path between the array
+        centres is |T + R - 2A| long, to a picometre of delay. Surveyed from x = 0 to 3.4 m
+        (radio chains without errors) with the two walls mapped, room_corner_picks for a
+        face looking west (side -1 along +x) puts it within 0.3 m of A from half the poses
+        or more (11 of 18 when written; picks also come 0.3-0.4 m short and, from the first
+        pose, 2.6 m off), their median within 0.15 m of it, and a face looking east, which
+        no pose here sees, nowhere near it."""
+        data = straight_survey_data([
+            {"name": "corridor", "segment": [[-3.0, -1.075], [12.0, -1.075]], "material": "plasterboard"},
+            {"name": "back", "segment": [[-3.0, -4.75], [12.0, -4.75]], "material": "plasterboard"},
+            {"name": "partition", "segment": [[4.0, -1.075], [4.0, -4.75]], "material": "stud_wall"}], 3.4, 0.2)
+        data["impairments"] = {"system_delay_s": 31.0e-9, "system_delay_known": True}  # nothing to calibrate
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+        apex = np.array([3.925, -4.675])
+        for pose in sc.poses[::6]:
+            centres = [bistatic.robot_to_world(np.mean(e, axis=0), pose) for e in (sc.radar.tx_elements_m, sc.radar.rx_elements_m)]
+            corner = [p for p in building_sim.path_truth(sc, pose) if p["kind"] == "corner_through"]
+            self.assertEqual(len(corner), 1, corner)
+            expected_s = float(np.hypot(*(centres[0] + centres[1] - 2.0 * apex))) / bistatic.SPEED_OF_LIGHT_M_S
+            self.assertLess(abs(corner[0]["delay_s"] - expected_s), 1e-12, (pose, corner[0]["delay_s"], expected_s))
+        groups = range(sc.poses.shape[0])
+        refiner = refiner_for(res, groups=groups)
+        back = dict(wall(-4.675), t0=-20.0, t1=20.0)
+        refiner.set_map([dict(wall(-1.0), t0=-20.0, t1=20.0), back], sc.poses, [[] for _ in groups], [False, True])
+        ts = np.arange(-3.0, 10.0, 0.025)
+        picks = np.array([t for _, t, _, _ in refiner.room_corner_picks(back, ts, groups, side=-1)])
+        near = np.count_nonzero(np.abs(picks - apex[0]) <= 0.3)
+        self.assertGreaterEqual(near, 0.5 * sc.poses.shape[0], picks)
+        self.assertLess(abs(float(np.median(picks)) - apex[0]), 0.15, picks)
+        facing_east = np.array([t for _, t, _, _ in refiner.room_corner_picks(back, ts, groups, side=1)])
+        self.assertLessEqual(np.count_nonzero(np.abs(facing_east - apex[0]) <= 0.3), 1, facing_east)
+        with self.assertRaises(ValueError):
+            refiner.room_corner_picks(back, ts, groups, side=0)
+
     def test_axial_profile_ranges_a_wall_behind(self):
         """A metal wall across the robot's axis 3.0 m behind the arrays' midpoint (x = -3.0;
         TX centre at -0.35, RX at +0.35): the image of the TX lies at x = -5.65, so the echo

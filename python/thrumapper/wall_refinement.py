@@ -823,6 +823,70 @@ class CsiWallRefiner:
                     noise[t, i] += energy / max(dims, 1)
         return scores, noise, total
 
+    # -- a room's corner behind a wall ---------------------------------------------------
+    #: room_corner_picks scores a hypothesis from the poses that see it between these angles
+    #: off the wall's normal (not across, where the wall's own echo is; not beyond the
+    #: scenes' truth.max_incidence_deg), at least CORNER_OFF_PARTITION_DEG round from the
+    #: partition's plane on its side and within CORNER_MAX_RANGE_M
+    CORNER_INCIDENCE_DEG = (8.0, 75.0)
+    CORNER_OFF_PARTITION_DEG = 10.0
+    CORNER_MAX_RANGE_M = 8.0
+
+    def room_corner_picks(self, wall, ts_m, groups, side):
+        """Where along a hidden wall's line each pose's CSI puts a room's corner
+        (benchmarks/room_corners.py; docs/mapping.md, "Rooms from their corners").
+
+        A partition meeting the wall (wall dict, world: centre, normal toward the robot,
+        direction) makes a concave dihedral, which answers from its apex A: its two
+        reflections make a point reflection through A, so each TX->RX element pair's path
+        is |T_k + R_m - 2A| long and the echo seems to come from A seen from the arrays'
+        midpoint. Hypotheses A = centre + t * direction (ts_m, (H,)), the partition's face
+        looking along side * direction (+1 or -1: seen from the poses on that side), are
+        scored per group of these with CSI against the residual of _residuals (the mapped
+        walls' echoes and the cancelled direct path projected out); the wall in front,
+        crossed out and back, by the survey material's insertion transmission at the legs'
+        incidence on the wall's line.
+
+        Returns [(g, t, J, noise)]: per group that sees at least three hypotheses, the one
+        capturing the most energy J (summed over the frames) when it is not at either end of
+        what the group sees, and what white noise would capture (the residual's energy over
+        its dimension)."""
+        if side not in (1, -1):
+            raise ValueError(f"side: expected +1 or -1, got {side!r}")
+        normal = np.asarray(wall["normal"], float)
+        direction = np.asarray(wall["direction"], float)
+        ts = np.asarray(ts_m, float).reshape(-1)
+        points = np.asarray(wall["centre"], float)[None, :] + ts[:, None] * direction[None, :]
+        tx = np.asarray(self.radar.tx_elements_m, float)
+        rx = np.asarray(self.radar.rx_elements_m, float)
+        wavenumbers = 2.0 * np.pi * self.freqs_hz / C
+        across, grazing = (math.cos(math.radians(a)) for a in self.CORNER_INCIDENCE_DEG)
+        round_from = math.sin(math.radians(self.CORNER_OFF_PARTITION_DEG))
+        picks = []
+        for g, data, pose, basis, residual, energy, dims in self._residuals(groups):
+            middle = bistatic.robot_to_world(0.5 * (self.tx_c + self.rx_c), pose)
+            rel = middle[None, :] - points
+            distance = np.hypot(*rel.T)
+            cos_normal = (rel @ normal) / distance
+            seen = np.flatnonzero((cos_normal < across) & (cos_normal > grazing) & (distance < self.CORNER_MAX_RANGE_M) &
+                                  ((rel @ (side * direction)) / distance > round_from))
+            if seen.size < 3:
+                continue
+            apex_r = np.array([bistatic.world_to_robot(p, pose) for p in points[seen]])
+            length = np.linalg.norm(tx[None, :, None, :] + rx[None, None, :, :] - 2.0 * apex_r[:, None, None, :], axis=3)
+            # one path per element pair, λ/(4πL) as _echo's up to the constant
+            echo = np.einsum("k,hkmn->hmn", data.model.weights,
+                             np.exp(-1j * length[..., None] * wavenumbers) / length[..., None]) * (C / self.freqs_hz)
+            if self.material is not None:
+                echo = echo * (data.model.coefficients(self.material, cos_normal[seen], 1) ** 2)[:, None, :]
+            columns = self._project_out((echo * self._sys).reshape(seen.size, -1).T, basis)
+            norms = np.sum(np.abs(columns) ** 2, axis=0)
+            captured = np.sum(np.abs(residual @ columns.conj()) ** 2, axis=0) / np.maximum(norms, 1e-300)
+            best = int(np.argmax(captured))
+            if 0 < best < seen.size - 1:
+                picks.append((g, float(ts[seen[best]]), float(captured[best]), energy / max(dims, 1)))
+        return picks
+
 
 def _moved_wall(base, pivot, offset, rotation):
     """Wall dict `base` turned by `rotation` about `pivot` (world) and then moved `offset`
