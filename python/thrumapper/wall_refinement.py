@@ -872,7 +872,7 @@ class CsiWallRefiner:
                                   ((rel @ (side * direction)) / distance > round_from))
             if seen.size < 3:
                 continue
-            apex_r = np.array([bistatic.world_to_robot(p, pose) for p in points[seen]])
+            apex_r = bistatic.world_to_robot(points[seen], pose)
             length = np.linalg.norm(tx[None, :, None, :] + rx[None, None, :, :] - 2.0 * apex_r[:, None, None, :], axis=3)
             # one path per element pair, λ/(4πL) as _echo's up to the constant
             echo = np.einsum("k,hkmn->hmn", data.model.weights,
