@@ -1173,7 +1173,10 @@ class WallFusion:
         # they overlap, are one wall's echoes mapped twice (JADE's mixed echoes of two walls
         # of one delay put a piece beside the real one, which then hides it); at the poses
         # that see both, the CSI keeps the one whose echo explains more of it
-        for a, b in self._twins(walls):
+        def in_front(a, b):
+            return self._in_front_of_others(det, state, poses, walls, (a, b))
+
+        for a, b in self._twins(walls, in_front):
             shared = [g for g in sorted(self.refiner.poses)
                       if g < len(poses) and self.refiner.sees(g, a) and self.refiner.sees(g, b)]
             if not shared:
@@ -1188,11 +1191,17 @@ class WallFusion:
     TWIN_M = 0.5
     TWIN_OVERLAP_M = 0.5
     TWIN_DEG = 15.0
+    #: ...or fanned out from each other: within TWIN_FAN_NEAR_M at one end of the overlap and
+    #: TWIN_FAN_FAR_M at the other, both walls in front of every other mapped wall
+    TWIN_FAN_NEAR_M = 0.3
+    TWIN_FAN_FAR_M = 1.0
 
-    def _twins(self, walls):
+    def _twins(self, walls, in_front=None):
         """Pairs (a, b) of walls that overlap by TWIN_OVERLAP_M along a, face the same way
         within TWIN_DEG, and lie within TWIN_M of each other's line at both ends of the
-        overlap."""
+        overlap; or fan out from each other (TWIN_FAN_NEAR_M at one end, TWIN_FAN_FAR_M at
+        the other) where in_front(a, b) (callable: whether both are seen in front of every
+        other mapped wall; None: fans are not paired)."""
         cos_twin = math.cos(math.radians(self.TWIN_DEG))
         pairs = []
         for a, wa in enumerate(walls):
@@ -1206,9 +1215,33 @@ class WallFusion:
                 if hi - lo < self.TWIN_OVERLAP_M:
                     continue
                 ends_a = [wa["centre"] + t * wa["direction"] for t in (lo, hi)]
-                if all(abs(float((p - wb["centre"]) @ wb["normal"])) < self.TWIN_M for p in ends_a):
+                near, far = sorted(abs(float((p - wb["centre"]) @ wb["normal"])) for p in ends_a)
+                if far < self.TWIN_M:
+                    pairs.append((a, b))
+                elif near < self.TWIN_FAN_NEAR_M and far < self.TWIN_FAN_FAR_M and in_front is not None \
+                        and in_front(a, b):
+                    # no building has two walls a few degrees apart within a metre of each
+                    # other: one is the other's echoes put at the wrong angle (skewed_walls'
+                    # 18-degree wall on seed 3: a piece 7 degrees off, 0.25 to 0.6 m in front)
                     pairs.append((a, b))
         return pairs
+
+    def _in_front_of_others(self, det, state, poses, walls, pair):
+        """Whether each wall of `pair` is seen in front of every mapped wall but the pair
+        (most of its echoes' legs cross none of them). Behind another wall the CSI's choice
+        between two twins leans on the slab model of a wall whose material may not be the
+        survey's (the office floors' brick and concrete exterior walls): fanned twins are
+        paired only in front."""
+        others = [walls[j] for j in range(len(walls)) if j not in pair]
+        if not others:
+            return True
+        a, b = self._segments(others)
+        for k in pair:
+            members = walls[k]["members"]
+            tx, rx = self._legs_from(poses, det["group"][members])
+            if np.mean(np.any(self._legs_cross(tx, rx, state["pw"][members], a, b), axis=1)) >= 0.5:
+                return False
+        return True
 
     def _confirm_thin_walls(self, det, state, poses, shifts):
         """Walls seen from fewer poses than min_wall_poses (a survey of one or a few poses:
