@@ -761,13 +761,16 @@ class qa_wall_refinement(gr_unittest.TestCase):
         # twins side by side are paired whatever stands in front
         self.assertEqual(fusion._twins([wall(-0.7), wall(-1.0)], lambda a, b: False), [(0, 1)])
         # in front: echoes of the two walls from three poses, with a wall between them and the
-        # robot (their legs cross it) or behind them
+        # robot (their legs cross it) or behind them; the crossings are the class rule's
         poses = np.array([[x, 0.0, 0.0] for x in (0.0, 0.2, 0.4)])
-        det = {"group": np.array([0, 1, 2, 0, 1, 2])}
-        state = {"pw": np.array([[x, y] for y in (-0.7, -0.9) for x in (0.0, 0.2, 0.4)])}
+        group = np.array([0, 1, 2, 0, 1, 2])
+        pw = np.array([[x, y] for y in (-0.7, -0.9) for x in (0.0, 0.2, 0.4)])
+        own = np.array([0, 0, 0, 1, 1, 1])
         pair = [dict(wall(-0.7), members=np.arange(3)), dict(fan, members=np.arange(3, 6))]
-        self.assertTrue(fusion._in_front_of_others(det, state, poses, pair + [wall(-1.5)], (0, 1)))
-        self.assertFalse(fusion._in_front_of_others(det, state, poses, pair + [wall(-0.4)], (0, 1)))
+        for third, in_front in ((wall(-1.5), True), (wall(-0.4), False)):
+            walls = pair + [third]
+            state = {"walls": walls, "crossings": fusion._crossings(walls, pw, group, poses, own)}
+            self.assertEqual(fusion._in_front_of_others(state, (0, 1)), in_front, third["centre"])
 
         _, res = simulated("paper_4_2_wall_0p7m")
         refiner = refiner_for(res)

@@ -1174,7 +1174,7 @@ class WallFusion:
         # of one delay put a piece beside the real one, which then hides it); at the poses
         # that see both, the CSI keeps the one whose echo explains more of it
         def in_front(a, b):
-            return self._in_front_of_others(det, state, poses, walls, (a, b))
+            return self._in_front_of_others(state, (a, b))
 
         for a, b in self._twins(walls, in_front):
             shared = [g for g in sorted(self.refiner.poses)
@@ -1226,20 +1226,15 @@ class WallFusion:
                     pairs.append((a, b))
         return pairs
 
-    def _in_front_of_others(self, det, state, poses, walls, pair):
-        """Whether each wall of `pair` is seen in front of every mapped wall but the pair
-        (most of its echoes' legs cross none of them). Behind another wall the CSI's choice
-        between two twins leans on the slab model of a wall whose material may not be the
-        survey's (the office floors' brick and concrete exterior walls): fanned twins are
-        paired only in front."""
-        others = [walls[j] for j in range(len(walls)) if j not in pair]
-        if not others:
-            return True
-        a, b = self._segments(others)
+    def _in_front_of_others(self, state, pair):
+        """Whether each wall of `pair` is seen in front of every mapped wall but the pair:
+        most of its echoes' legs cross none of them (state["crossings"], the class rule's).
+        Behind another wall the CSI's choice between two twins leans on the slab model of a
+        wall whose material may not be the survey's (the office floors' brick and concrete
+        exterior walls): fanned twins are paired only in front."""
         for k in pair:
-            members = walls[k]["members"]
-            tx, rx = self._legs_from(poses, det["group"][members])
-            if np.mean(np.any(self._legs_cross(tx, rx, state["pw"][members], a, b), axis=1)) >= 0.5:
+            behind = [bool(set(state["crossings"][i]) - set(pair)) for i in state["walls"][k]["members"]]
+            if np.mean(behind) >= 0.5:
                 return False
         return True
 
