@@ -372,6 +372,42 @@ def _relative(a, b):
     return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1], math.remainder(b[2] - a[2], 2.0 * math.pi)])
 
 
+class _SparseDifferences:
+    """The dense Jacobian of a residual function by forward differences, perturbing at once
+    every column of a group that shares no row with another (the sparsity's greedy colouring:
+    a few dozen evaluations for a pose chain of hundreds of unknowns)."""
+
+    def __init__(self, function, sparsity):
+        self.function = function
+        sparsity = sparsity.tocsc()
+        self.rows = [sparsity.indices[sparsity.indptr[j]:sparsity.indptr[j + 1]] for j in range(sparsity.shape[1])]
+        self.groups, used = [], []
+        for j, rows in enumerate(self.rows):
+            for members, taken in zip(self.groups, used):
+                if not taken[rows].any():
+                    members.append(j)
+                    taken[rows] = True
+                    break
+            else:
+                taken = np.zeros(sparsity.shape[0], bool)
+                taken[rows] = True
+                self.groups.append([j])
+                used.append(taken)
+
+    def __call__(self, x):
+        f0 = self.function(x)
+        jac = np.zeros((f0.size, x.size))
+        for members in self.groups:
+            step = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(x[members]))
+            trial = x.copy()
+            trial[members] += step
+            step = trial[members] - x[members]  # the step as represented
+            df = self.function(trial) - f0
+            for j, h in zip(members, step):
+                jac[self.rows[j], j] = df[self.rows[j]] / h
+        return jac
+
+
 def _line_fit(points, weights, normals):
     """Weighted total-least-squares line: (centre (2,), unit normal (2,), along spread m).
 
@@ -1991,6 +2027,7 @@ class WallFusion:
         started = time.perf_counter()
         self._phase_s = {}
         self._odometry_fit = None
+        self._scale_latched = False  # _adjust_poses: the scale held at 1 for the rounds left
         self._fit_cache = {}
         self._leak_estimated = False
         self._direct_leak_db = None
@@ -2380,15 +2417,23 @@ class WallFusion:
             for q in range(1, count):
                 sparsity[row, n_fixed + start + q - 1:n_fixed + start + q + 1] = 1
                 row += 1
+        jacobian = _SparseDifferences(residuals, sparsity.tocsc())
+
         def solve(x):
             """Cauchy weights by iterated reweighting around plain least squares: scipy's
             robust losses take hundreds of evaluations on a long pose chain and stop short of
-            the minimum; plain Gauss-Newton steps converge in a few dozen."""
+            the minimum; plain Gauss-Newton steps converge in a few.
+
+            The trust-region steps are solved exactly (an SVD of the dense Jacobian, a few
+            hundred columns): the iterative solver (LSMR) crawled along the heading drift's
+            narrow valley for a hundred evaluations and stopped on ftol short of the minimum,
+            and where it stopped moved with the last bits of its sums, so one survey mapped
+            twice in one process gave two maps (docs/mapping.md, "One survey, one map")."""
             weights = np.ones(m)
             for _ in range(self.ADJUSTMENT_REWEIGHTS):
                 row_weights[0] = weights
-                solution = least_squares(residuals, x, jac_sparsity=sparsity.tocsr(), x_scale="jac",
-                                         max_nfev=self.ADJUSTMENT_MAX_NFEV, method="trf")
+                solution = least_squares(residuals, x, jac=jacobian, x_scale="jac", method="trf", tr_solver="exact",
+                                         max_nfev=self.ADJUSTMENT_MAX_NFEV, ftol=1e-12, xtol=1e-12, gtol=1e-10)
                 x = solution.x
                 normalised = np.abs(solution.fun) / weights
                 new_weights = np.sqrt(1.0 / (1.0 + (normalised / self.ADJUSTMENT_CAUCHY) ** 2))
@@ -2413,7 +2458,12 @@ class WallFusion:
         # tied to the wrong landmark (an end wall's corners, a partition seen end-on): held at
         # 1, the drift left to the data (office floors re-simulated without an axial landmark
         # came out 0.91-0.97 for a true 0.990, and 0.3-0.98 m off)
-        implausible = bool(abs(scale - 1.0) > self.SCALE_PLAUSIBLE_SIGMAS * s.odometry_scale_sigma)
+        # Once found implausible in a round, the scale stays held for the rounds after: a scale
+        # near the limit otherwise flips between held and free from one round to the next
+        # (office_floor seed 2: 0.971, 1, 0.976, 1, ... moving the last pose 0.2-0.6 m a
+        # round), and the map is wherever the last round leaves that cycle
+        implausible = self._scale_latched or bool(abs(scale - 1.0) > self.SCALE_PLAUSIBLE_SIGMAS * s.odometry_scale_sigma)
+        self._scale_latched = implausible
         if held or implausible:
             prior[:] = [1e-6 * prior[0], 1e-6 * prior[1] if held else prior[1]]
             x, solution = solve(x0)
@@ -2422,7 +2472,8 @@ class WallFusion:
         self._odometry_fit = {"odometry_scale": float(scale), "odometry_drift_deg_per_m": math.degrees(drift),
                               "odometry_scale_sigma": float(sigma_fit[0]),
                               "odometry_drift_sigma_deg_per_m": math.degrees(float(sigma_fit[1])),
-                              "odometry_systematic_held": held, "odometry_scale_implausible": implausible}
+                              "odometry_systematic_held": held, "odometry_scale_implausible": implausible,
+                              "adjustment_optimality": float(solution.optimality)}
         return ps
 
     def _collinear_groups(self, walls):
