@@ -220,6 +220,35 @@ class qa_wall_fusion(gr_unittest.TestCase):
         # depends on where the arrays lie; a nanometre is such a difference, not another map)
         self.assertLess(float(np.max(np.abs(trajectories[0] - trajectories[1]))), 1e-9)
 
+    def test_levenberg_marquardt_on_a_known_minimum(self):
+        """The adjustment's solver on problems whose answer is known: Rosenbrock's valley as
+        residuals (10 (y - x²), 1 - x), minimum 0 at (1, 1), from (-1.2, 1); and a chain of
+        200 unknowns, each tied to its neighbour (x[i+1] - x[i] = 0.1) and the first to 0,
+        solved by the sparse Jacobian's column groups (3 evaluations a Jacobian, not 200)."""
+        from scipy.sparse import diags
+
+        from gnuradio.thrumapper.wall_fusion import _levenberg_marquardt, _SparseDifferences
+
+        def rosenbrock(x):
+            return np.array([10.0 * (x[1] - x[0] ** 2), 1.0 - x[0]])
+
+        jacobian = _SparseDifferences(rosenbrock, np.ones((2, 2)))
+        solution = _levenberg_marquardt(rosenbrock, jacobian, np.array([-1.2, 1.0]), 200)
+        np.testing.assert_allclose(solution.x, [1.0, 1.0], atol=1e-6)
+        self.assertLess(solution.cost, 1e-12)
+
+        n = 200
+
+        def chain(x):
+            return np.concatenate(([x[0]], np.diff(x) - 0.1))
+
+        sparsity = diags([np.ones(n), np.ones(n - 1)], [0, -1], shape=(n, n))
+        jacobian = _SparseDifferences(chain, sparsity)
+        self.assertLessEqual(len(jacobian.groups), 3)
+        solution = _levenberg_marquardt(chain, jacobian, np.zeros(n), 50)
+        np.testing.assert_allclose(solution.x, 0.1 * np.arange(n), atol=1e-9)
+        self.assertLess(solution.optimality, 1e-9)
+
     def test_scale_held_once_stays_held(self):
         """A scale found implausible in one round of the adjustment is held at 1 in the rounds
         after, though it would pass there: near the limit it otherwise flips between held and

@@ -373,14 +373,19 @@ def _relative(a, b):
 
 
 class _SparseDifferences:
-    """The dense Jacobian of a residual function by forward differences, perturbing at once
+    """The sparse Jacobian of a residual function by forward differences, perturbing at once
     every column of a group that shares no row with another (the sparsity's greedy colouring:
     a few dozen evaluations for a pose chain of hundreds of unknowns)."""
 
     def __init__(self, function, sparsity):
+        from scipy.sparse import csc_matrix
+
         self.function = function
-        sparsity = sparsity.tocsc()
-        self.rows = [sparsity.indices[sparsity.indptr[j]:sparsity.indptr[j + 1]] for j in range(sparsity.shape[1])]
+        sparsity = csc_matrix(sparsity)
+        sparsity.sort_indices()
+        self.shape = sparsity.shape
+        self.indptr, self.indices = sparsity.indptr, sparsity.indices
+        self.rows = [self.indices[self.indptr[j]:self.indptr[j + 1]] for j in range(self.shape[1])]
         self.groups, used = [], []
         for j, rows in enumerate(self.rows):
             for members, taken in zip(self.groups, used):
@@ -389,14 +394,17 @@ class _SparseDifferences:
                     taken[rows] = True
                     break
             else:
-                taken = np.zeros(sparsity.shape[0], bool)
+                taken = np.zeros(self.shape[0], bool)
                 taken[rows] = True
                 self.groups.append([j])
                 used.append(taken)
 
-    def __call__(self, x):
-        f0 = self.function(x)
-        jac = np.zeros((f0.size, x.size))
+    def __call__(self, x, f0=None):
+        """(CSC Jacobian at x, residuals at x)."""
+        from scipy.sparse import csc_matrix
+
+        f0 = self.function(x) if f0 is None else f0
+        data = np.zeros(self.indices.size)
         for members in self.groups:
             step = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(x[members]))
             trial = x.copy()
@@ -404,8 +412,49 @@ class _SparseDifferences:
             step = trial[members] - x[members]  # the step as represented
             df = self.function(trial) - f0
             for j, h in zip(members, step):
-                jac[self.rows[j], j] = df[self.rows[j]] / h
-        return jac
+                data[self.indptr[j]:self.indptr[j + 1]] = df[self.rows[j]] / h
+        return csc_matrix((data, self.indices, self.indptr), shape=self.shape), f0
+
+
+def _levenberg_marquardt(residuals, jacobian, x, max_evaluations, tolerance=1e-12):
+    """min ½|f(x)|² by Levenberg-Marquardt steps solved exactly on the sparse normal equations
+    (SuperLU; Marquardt's scaling by the diagonal). Stops when the cost falls by less than
+    `tolerance` of itself or the gradient vanishes. Returns an object with x, fun (residuals),
+    jac (sparse), cost, optimality (|Jᵀf|∞) and nfev, like scipy's least_squares."""
+    from types import SimpleNamespace
+
+    from scipy.sparse import diags
+    from scipy.sparse.linalg import spsolve
+
+    f = residuals(x)
+    jac, _ = jacobian(x, f)
+    cost = 0.5 * float(f @ f)
+    damping, evaluations = 1e-3, 1
+    while evaluations < max_evaluations:
+        gradient = jac.T @ f
+        if float(np.max(np.abs(gradient), initial=0.0)) <= tolerance * max(1.0, cost):
+            break
+        normal = (jac.T @ jac).tocsc()
+        scale = np.maximum(normal.diagonal(), 1e-12)
+        step = spsolve((normal + diags(damping * scale)).tocsc(), -gradient)
+        trial = x + step
+        f_trial = residuals(trial)
+        evaluations += 1
+        cost_trial = 0.5 * float(f_trial @ f_trial) if np.all(np.isfinite(f_trial)) else math.inf
+        if cost_trial < cost:
+            converged = cost - cost_trial <= tolerance * cost
+            x, f, cost = trial, f_trial, cost_trial
+            damping = max(damping / 3.0, 1e-12)
+            jac, _ = jacobian(x, f)
+            if converged:
+                break
+        else:
+            damping *= 4.0
+            if damping > 1e12:
+                break
+    gradient = jac.T @ f
+    return SimpleNamespace(x=x, fun=f, jac=jac, cost=cost, nfev=evaluations,
+                           optimality=float(np.max(np.abs(gradient), initial=0.0)))
 
 
 def _line_fit(points, weights, normals):
@@ -2235,8 +2284,8 @@ class WallFusion:
     def _adjust_poses(self, det, odometry, poses, state, wall_cls, axial=()):
         """Least-squares adjustment of every pose with the line-of-sight walls, corners and
         axial landmarks (_axial_landmarks: walls across the track, ranged on the CSI) as
-        landmarks and the odometry increments as constraints (scipy.optimize.least_squares)."""
-        from scipy.optimize import least_squares
+        landmarks and the odometry increments as constraints (sparse Levenberg-Marquardt,
+        _levenberg_marquardt)."""
         from scipy.sparse import lil_matrix
 
         s = self.settings
@@ -2424,16 +2473,17 @@ class WallFusion:
             robust losses take hundreds of evaluations on a long pose chain and stop short of
             the minimum; plain Gauss-Newton steps converge in a few.
 
-            The trust-region steps are solved exactly (an SVD of the dense Jacobian, a few
-            hundred columns): the iterative solver (LSMR) crawled along the heading drift's
-            narrow valley for a hundred evaluations and stopped on ftol short of the minimum,
-            and where it stopped moved with the last bits of its sums, so one survey mapped
-            twice in one process gave two maps (docs/mapping.md, "One survey, one map")."""
+            The steps are solved exactly (Levenberg-Marquardt on the sparse normal equations):
+            scipy's trust-region solver for sparse Jacobians (LSMR) crawled along the heading
+            drift's narrow valley for a hundred evaluations and stopped on ftol short of the
+            minimum, and where it stopped moved with the last bits of its sums, so one survey
+            mapped twice in one process gave two maps (docs/mapping.md, "One survey, one
+            map"); its exact solver works on a dense Jacobian, whose SVD grows with the cube
+            of the survey's length."""
             weights = np.ones(m)
             for _ in range(self.ADJUSTMENT_REWEIGHTS):
                 row_weights[0] = weights
-                solution = least_squares(residuals, x, jac=jacobian, x_scale="jac", method="trf", tr_solver="exact",
-                                         max_nfev=self.ADJUSTMENT_MAX_NFEV, ftol=1e-12, xtol=1e-12, gtol=1e-10)
+                solution = _levenberg_marquardt(residuals, jacobian, x, self.ADJUSTMENT_MAX_NFEV)
                 x = solution.x
                 normalised = np.abs(solution.fun) / weights
                 new_weights = np.sqrt(1.0 / (1.0 + (normalised / self.ADJUSTMENT_CAUCHY) ** 2))
