@@ -400,7 +400,7 @@ class _SparseDifferences:
                 used.append(taken)
 
     def __call__(self, x, f0=None):
-        """(CSC Jacobian at x, residuals at x)."""
+        """The CSC Jacobian at x (f0: the residuals at x, when known)."""
         from scipy.sparse import csc_matrix
 
         f0 = self.function(x) if f0 is None else f0
@@ -413,7 +413,7 @@ class _SparseDifferences:
             df = self.function(trial) - f0
             for j, h in zip(members, step):
                 data[self.indptr[j]:self.indptr[j + 1]] = df[self.rows[j]] / h
-        return csc_matrix((data, self.indices, self.indptr), shape=self.shape), f0
+        return csc_matrix((data, self.indices, self.indptr), shape=self.shape)
 
 
 def _levenberg_marquardt(residuals, jacobian, x, max_evaluations, tolerance=1e-12):
@@ -427,7 +427,7 @@ def _levenberg_marquardt(residuals, jacobian, x, max_evaluations, tolerance=1e-1
     from scipy.sparse.linalg import spsolve
 
     f = residuals(x)
-    jac, _ = jacobian(x, f)
+    jac = jacobian(x, f)
     cost = 0.5 * float(f @ f)
     damping, evaluations = 1e-3, 1
     while evaluations < max_evaluations:
@@ -445,7 +445,7 @@ def _levenberg_marquardt(residuals, jacobian, x, max_evaluations, tolerance=1e-1
             converged = cost - cost_trial <= tolerance * cost
             x, f, cost = trial, f_trial, cost_trial
             damping = max(damping / 3.0, 1e-12)
-            jac, _ = jacobian(x, f)
+            jac = jacobian(x, f)
             if converged:
                 break
         else:
@@ -2498,7 +2498,7 @@ class WallFusion:
         # standard errors from the last Jacobian; a systematic error smaller than
         # SYSTEMATIC_SIGNIFICANCE of them is held at none, so that a few biased echoes cannot
         # bend a short, well-measured trajectory
-        jac = solution.jac.toarray() if hasattr(solution.jac, "toarray") else np.asarray(solution.jac)
+        jac = solution.jac.toarray()
         cov_x = np.linalg.pinv(jac.T @ jac)
         sigma_fit = np.sqrt(np.maximum(np.diag(cov_x)[-2:], 0.0))
         _, _, _, _, _, scale, drift = unpack(x)
