@@ -14,7 +14,7 @@ from gnuradio import blocks, gr, gr_unittest
 
 from gnuradio.thrumapper import bistatic, evaluation
 from gnuradio.thrumapper.survey_blocks import pose_message
-from gnuradio.thrumapper.testing import wait_for
+from gnuradio.thrumapper.testing import drifting_corridor, exact_echoes, straight_poses, wait_for
 from gnuradio.thrumapper.wall_fusion import (HIDDEN, LOS, FusionError, FusionSettings, RadarGeometry, WallFusion,
                                              map_to_pmt, wall_fusion)
 
@@ -24,61 +24,7 @@ TX, RX = RADAR.tx_centre_m, RADAR.rx_centre_m
 
 
 def wall_echoes(pose, walls, points=(), ghosts=False, max_range_m=8.0):
-    """Exact echoes at a pose: specular reflections of the wall segments (world [p0, p1]) whose
-    specular point lies on the segment, point scatterers, and (ghosts) the double bounces
-    between the first two walls. Power falls by 10 dB per wall a leg crosses (a hidden wall
-    comes back about 20 dB below the one in front, as in the paper)."""
-    out = []
-    faces = []
-    for p0, p1 in walls:
-        p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
-        d = (p1 - p0) / np.hypot(*(p1 - p0))
-        n = np.array([-d[1], d[0]])
-        if (np.asarray(pose[:2]) - p0) @ n < 0:
-            n = -n
-        faces.append((p0, p1, n))
-
-    def crossings(a, b, skip):
-        count = 0
-        for k, (q0, q1, _) in enumerate(faces):
-            if k != skip and bistatic.segments_cross(a, b, q0, q1):
-                count += 1
-        return count
-
-    tx_w = bistatic.robot_to_world(TX, pose)
-    rx_w = bistatic.robot_to_world(RX, pose)
-    for k, (p0, p1, n) in enumerate(faces):
-        q_r = bistatic.world_to_robot(p0, pose)
-        n_r = bistatic.rotate(n, -pose[2])
-        try:
-            aoa, delay, point_r = bistatic.specular_path(q_r, n_r, TX, RX)
-        except bistatic.GeometryError:
-            continue
-        point = bistatic.robot_to_world(point_r, pose)
-        t = (point - p0) @ (p1 - p0) / ((p1 - p0) @ (p1 - p0))
-        if not 0.0 < t < 1.0 or np.hypot(*(point - pose[:2])) > max_range_m:
-            continue
-        crossed = crossings(tx_w, point, k) + crossings(point, rx_w, k)
-        out.append({"aoa_deg": math.degrees(aoa), "delay_s": delay, "power": 1e-5 / (C * delay) ** 2 * 0.1 ** crossed})
-    for p in points:
-        p_r = bistatic.world_to_robot(p, pose)
-        delay = (np.hypot(*(p_r - TX)) + np.hypot(*(p_r - RX))) / C
-        aoa = math.atan2(*(p_r - RX)[::-1])
-        out.append({"aoa_deg": math.degrees(aoa) % 360, "delay_s": delay, "power": 3e-6 / (C * delay) ** 2})
-    if ghosts and len(faces) >= 2:
-        for a, b in ((0, 1), (1, 0)):
-            fa, fb = faces[a], faces[b]
-            path = bistatic.double_bounce_path(bistatic.world_to_robot(fa[0], pose), bistatic.rotate(fa[2], -pose[2]),
-                                               bistatic.world_to_robot(fb[0], pose), bistatic.rotate(fb[2], -pose[2]),
-                                               TX, RX)
-            if path is not None:
-                out.append({"aoa_deg": math.degrees(path[0]), "delay_s": path[1], "power": 1e-6 / (C * path[1]) ** 2})
-    return out
-
-
-def straight_poses(x0, x1, step=0.2, y=0.0):
-    xs = np.arange(x0, x1 + 1e-9, step)
-    return np.column_stack((xs, np.full_like(xs, y), np.zeros_like(xs)))
+    return exact_echoes(pose, walls, RADAR, points, ghosts, max_range_m)
 
 
 def exact_settings(**changes):
@@ -143,26 +89,11 @@ class qa_wall_fusion(gr_unittest.TestCase):
         for end in (w.start_m, w.end_m):
             self.assertLess(abs((end - start) @ n), 1e-3)
 
-    def drifting_corridor(self):
-        """20 m of corridor between walls 2 m apart, closed 3 m past both ends, with door
-        frames; odometry 1 % long and drifting 0.5° per metre: (true poses, reported poses,
-        walls, door frames)."""
-        true = straight_poses(0.0, 20.0)
-        walls = [([-3.0, -1.0], [23.0, -1.0]), ([-3.0, 1.0], [23.0, 1.0]),
-                 ([-3.0, -1.0], [-3.0, 1.0]), ([23.0, -1.0], [23.0, 1.0])]
-        frames = [np.array([x, y]) for x in range(2, 20, 4) for y in (-1.0, 1.0)]
-        reported = [true[0].copy()]
-        for _ in range(1, len(true)):
-            heading = reported[-1][2] + math.radians(0.5) * 0.2
-            reported.append(np.array([reported[-1][0] + 0.202 * math.cos(reported[-1][2]),
-                                      reported[-1][1] + 0.202 * math.sin(reported[-1][2]), heading]))
-        return true, np.array(reported), walls, frames
-
     def test_pose_correction_with_drifting_odometry(self):
         """20 m of corridor with odometry 1 % long and drifting 0.5° per metre: the echoes come
         from the true poses, the odometry reports drifted ones. The corridor walls, the end
         walls and the door frames bring the trajectory back to a few centimetres."""
-        true, reported, walls, frames = self.drifting_corridor()
+        true, reported, walls, frames = drifting_corridor()
         drift_rms = float(np.sqrt(np.mean(np.sum((reported[:, :2] - true[:, :2]) ** 2, axis=1))))
         self.assertGreater(drift_rms, 0.5)
         fusion = WallFusion(RADAR, exact_settings())
@@ -206,7 +137,7 @@ class qa_wall_fusion(gr_unittest.TestCase):
         """The adjustment's least squares end at their minimum (first-order optimality near
         zero, not stopped on a tolerance partway along the drift's valley), and the same input
         mapped twice, from arrays at other addresses, gives the same trajectory."""
-        true, reported, walls, frames = self.drifting_corridor()
+        true, reported, walls, frames = drifting_corridor()
         trajectories = []
         for _ in range(2):
             fusion = WallFusion(RADAR, exact_settings())
@@ -249,13 +180,31 @@ class qa_wall_fusion(gr_unittest.TestCase):
         np.testing.assert_allclose(solution.x, 0.1 * np.arange(n), atol=1e-9)
         self.assertLess(solution.optimality, 1e-9)
 
+    def test_standard_errors_of_a_random_walk(self):
+        """The adjustment's standard errors (the significance test of the odometry's scale and
+        drift): a chain of n unknowns, the first measured with unit noise and each step with
+        unit noise, is a random walk, so the last two have variances n - 1 and n. An unknown
+        that no residual touches (JᵀJ singular) gets 0 from the pseudo-inverse, not a failure."""
+        from scipy.sparse import csr_matrix, diags, hstack
+
+        from gnuradio.thrumapper.wall_fusion import _last_standard_errors
+
+        n = 400
+        jac = diags([np.ones(n), -np.ones(n - 1)], [0, -1], shape=(n, n)).tocsr()
+        np.testing.assert_allclose(_last_standard_errors(jac, 2), np.sqrt([n - 1.0, n]), rtol=1e-9)
+        untouched = hstack([jac, csr_matrix((n, 1))]).tocsr()
+        np.testing.assert_allclose(_last_standard_errors(untouched, 2), [math.sqrt(n), 0.0], rtol=1e-9, atol=1e-12)
+        # an untouched unknown elsewhere (a landmark left without observations) changes nothing
+        first = hstack([csr_matrix((n, 1)), jac]).tocsr()
+        np.testing.assert_allclose(_last_standard_errors(first, 2), np.sqrt([n - 1.0, n]), rtol=1e-9)
+
     def test_scale_held_once_stays_held(self):
         """A scale found implausible in one round of the adjustment is held at 1 in the rounds
         after, though it would pass there: near the limit it otherwise flips between held and
         free from round to round and the map is wherever the last round leaves the cycle. The
         plausibility limit here is 0.5 sigma in the first round (the corridor's 1 % scale
         fails it) and 100 sigma after."""
-        true, reported, walls, frames = self.drifting_corridor()
+        true, reported, walls, frames = drifting_corridor()
 
         class FirstRoundStrict(WallFusion):
             limits = iter([0.5])
