@@ -198,6 +198,18 @@ class qa_wall_fusion(gr_unittest.TestCase):
         first = hstack([csr_matrix((n, 1)), jac]).tocsr()
         np.testing.assert_allclose(_last_standard_errors(first, 2), np.sqrt([n - 1.0, n]), rtol=1e-9)
 
+    def test_spd_solve(self):
+        """The adjustment's step solver on symmetric positive definite matrices: the solution
+        of a known 2 x 2 system, and NaN for a singular matrix (the step is then refused and
+        the damping raised), not an exception out of the map."""
+        from scipy.sparse import csc_matrix
+
+        from gnuradio.thrumapper.wall_fusion import _spd_solve
+
+        np.testing.assert_allclose(_spd_solve(csc_matrix([[4.0, 2.0], [2.0, 3.0]]), np.array([1.0, 1.0])),
+                                   [0.125, 0.25], rtol=1e-12)
+        self.assertTrue(np.all(np.isnan(_spd_solve(csc_matrix([[1.0, 0.0], [0.0, 0.0]]), np.ones(2)))))
+
     def test_scale_held_once_stays_held(self):
         """A scale found implausible in one round of the adjustment is held at 1 in the rounds
         after, though it would pass there: near the limit it otherwise flips between held and
