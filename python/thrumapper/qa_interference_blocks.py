@@ -5,6 +5,7 @@
 """QA of null_steering_weights, projection_canceller and JADE's successive cancellation,
 against the simulated building's exact wideband channel."""
 
+import gc
 import math
 
 import numpy as np
@@ -39,6 +40,7 @@ class qa_interference_blocks(gr_unittest.TestCase):
 
     def tearDown(self):
         self.tb = None
+        gc.collect()  # the flowgraph's cycles freed here, not in a later test's block thread (qa_radio_chain)
 
     def test_null_is_40_db_deep_in_the_wideband_simulation(self):
         """The designed weights, applied in the simulator's exact wideband near-field channel

@@ -4,6 +4,7 @@
 #
 """QA of the jade_estimator block: frames in, spectra and path messages out."""
 
+import gc
 import math
 
 import numpy as np
@@ -37,6 +38,7 @@ class qa_jade_estimator(gr_unittest.TestCase):
 
     def tearDown(self):
         self.tb = None
+        gc.collect()  # the flowgraph's cycles freed here, not in a later test's block thread (qa_radio_chain)
 
     def run_frames(self, frames, est, tags=()):
         src = blocks.vector_source_c(np.concatenate(frames).tolist(), False, self.vlen, list(tags))

@@ -4,6 +4,7 @@
 #
 """QA for survey_source and survey_sink: replay, recording, tags and pose messages."""
 
+import gc
 import os
 import shutil
 import tempfile
@@ -80,6 +81,7 @@ class qa_survey_blocks(gr_unittest.TestCase):
 
     def tearDown(self):
         self.tb = None
+        gc.collect()  # the flowgraph's cycles freed here, not in a later test's block thread (qa_radio_chain)
         shutil.rmtree(self.dir, ignore_errors=True)
 
     def make_sink(self, name, **kwargs):
