@@ -428,14 +428,16 @@ def _levenberg_marquardt(residuals, jacobian, x, max_evaluations, tolerance=1e-1
 
     f = residuals(x)
     jac = jacobian(x, f)
+    gradient = jac.T @ f
+    normal = None  # JᵀJ at x, formed when first needed: a refused step keeps it
     cost = 0.5 * float(f @ f)
     damping, evaluations = 1e-3, 1
     while evaluations < max_evaluations:
-        gradient = jac.T @ f
         if float(np.max(np.abs(gradient), initial=0.0)) <= tolerance * max(1.0, cost):
             break
-        normal = (jac.T @ jac).tocsc()
-        scale = np.maximum(normal.diagonal(), 1e-12)
+        if normal is None:
+            normal = (jac.T @ jac).tocsc()
+            scale = np.maximum(normal.diagonal(), 1e-12)
         step = _spd_solve(normal + diags(damping * scale), -gradient)
         evaluations += 1
         cost_trial = math.inf
@@ -449,13 +451,13 @@ def _levenberg_marquardt(residuals, jacobian, x, max_evaluations, tolerance=1e-1
             x, f, cost = trial, f_trial, cost_trial
             damping = max(damping / 3.0, 1e-12)
             jac = jacobian(x, f)
+            gradient, normal = jac.T @ f, None
             if converged:
                 break
         else:
             damping *= 4.0
             if damping > 1e12:
                 break
-    gradient = jac.T @ f
     return SimpleNamespace(x=x, fun=f, jac=jac, cost=cost, nfev=evaluations,
                            optimality=float(np.max(np.abs(gradient), initial=0.0)))
 
@@ -494,18 +496,18 @@ def _last_standard_errors(jac, count):
     touched = np.flatnonzero(np.asarray(abs(jac).sum(axis=0)).ravel() > 0)
     wanted = np.arange(n - count, n)
     diagonal = np.zeros(count)
-    slots = np.searchsorted(touched, wanted)
-    present = (slots < touched.size) & (touched[np.minimum(slots, touched.size - 1)] == wanted)
+    present = np.isin(wanted, touched)
     if not np.any(present):
         return diagonal
+    slots = np.searchsorted(touched, wanted[present])  # their places among the touched
     reduced = normal[touched][:, touched].tocsc()
-    unit = np.zeros((touched.size, int(np.count_nonzero(present))))
-    unit[slots[present], np.arange(unit.shape[1])] = 1.0
+    unit = np.zeros((touched.size, slots.size))
+    unit[slots, np.arange(slots.size)] = 1.0
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # SuperLU warns, not raises, on some singular inputs
             columns = _spd_factor(reduced).solve(unit)
-        values = columns[slots[present], np.arange(unit.shape[1])]
+        values = columns[slots, np.arange(slots.size)]
         if not np.all(np.isfinite(values)) or np.any(values < 0):
             raise RuntimeError("singular")
     except (RuntimeError, ValueError, Warning):
@@ -2520,7 +2522,7 @@ class WallFusion:
         row = 3 * (P - 1)
         entries([row, row + 1], [[x0.size - 2], [x0.size - 1]])
         row += 2
-        g_w = group[obs_w_arr] if obs_w else np.zeros(0, int)
+        g_w = group[obs_w_arr]
         for orientations in (False, True):  # distances, then orientations
             rows = row + np.arange(len(obs_w))
             pose_entries(rows, g_w)
@@ -2528,7 +2530,7 @@ class WallFusion:
             if n_bias and not orientations:
                 entries(rows, n_fixed + knot_i)
             row += len(obs_w)
-        g_c = group[obs_c_arr] if len(obs_c) else np.zeros(0, int)
+        g_c = group[obs_c_arr]
         for r in range(2):
             rows = row + 2 * np.arange(len(obs_c)) + r
             pose_entries(rows, g_c)
@@ -2545,8 +2547,7 @@ class WallFusion:
             row += count
         rows_at, cols_at = np.concatenate(rows_at), np.concatenate(cols_at)
         sparsity = coo_matrix((np.ones(rows_at.size, int), (rows_at, cols_at)), shape=(m, x0.size)).tocsc()
-        sparsity.sum_duplicates()
-        sparsity.data[:] = 1
+        sparsity.data[:] = 1  # (tocsc summed the duplicates)
         jacobian = _SparseDifferences(residuals, sparsity)
 
         def solve(x):
