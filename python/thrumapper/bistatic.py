@@ -107,19 +107,24 @@ def specular_path(face_point_m, normal, tx_centre_m, rx_centre_m):
     normal), by the image method: (aoa_rad, delay_s, reflection point (2,)).
 
     Raises GeometryError when the array centres are not both in front of the face.
+
+    Plain float arithmetic: the CSI fits ask for it ~10^5 times a map.
     """
-    tx = np.asarray(tx_centre_m, dtype=float)
-    rx = np.asarray(rx_centre_m, dtype=float)
-    n = _unit(normal)
-    q = np.asarray(face_point_m, dtype=float)
-    if not (np.dot(tx - q, n) > 0.0 and np.dot(rx - q, n) > 0.0):
+    tx_x, tx_y = float(tx_centre_m[0]), float(tx_centre_m[1])
+    rx_x, rx_y = float(rx_centre_m[0]), float(rx_centre_m[1])
+    q_x, q_y = float(face_point_m[0]), float(face_point_m[1])
+    n_x, n_y = float(normal[0]), float(normal[1])
+    length = math.sqrt(n_x * n_x + n_y * n_y)
+    if length != 0.0:
+        n_x, n_y = n_x / length, n_y / length
+    if not ((tx_x - q_x) * n_x + (tx_y - q_y) * n_y > 0.0 and (rx_x - q_x) * n_x + (rx_y - q_y) * n_y > 0.0):
         raise GeometryError("specular_path: both array centres must be in front of the face (on the normal's side)")
-    image = mirror(tx, q, n)
-    v = image - rx
-    length_m = float(np.hypot(*v))
-    t = np.dot(q - rx, n) / np.dot(v, n)
-    point = rx + t * v
-    return math.atan2(v[1], v[0]) % (2.0 * math.pi), length_m / SPEED_OF_LIGHT_M_S, point
+    d = 2.0 * ((tx_x - q_x) * n_x + (tx_y - q_y) * n_y)
+    v_x, v_y = tx_x - d * n_x - rx_x, tx_y - d * n_y - rx_y  # TX's image, seen from RX
+    length_m = float(np.hypot(v_x, v_y))
+    t = ((q_x - rx_x) * n_x + (q_y - rx_y) * n_y) / (v_x * n_x + v_y * n_y)
+    point = np.array([rx_x + t * v_x, rx_y + t * v_y])
+    return math.atan2(v_y, v_x) % (2.0 * math.pi), length_m / SPEED_OF_LIGHT_M_S, point
 
 
 def double_bounce_path(first_point_m, first_normal, second_point_m, second_normal, tx_centre_m, rx_centre_m):
@@ -172,6 +177,9 @@ def robot_to_world(points_m, pose):
     x, y, h = (float(v) for v in pose)
     c, s = math.cos(h), math.sin(h)
     p = np.asarray(points_m, dtype=float)
+    if p.shape == (2,):  # one point (the CSI fits' many calls): the same arithmetic on floats
+        px, py = float(p[0]), float(p[1])
+        return np.array([x + c * px - s * py, y + s * px + c * py])
     return np.stack((x + c * p[..., 0] - s * p[..., 1], y + s * p[..., 0] + c * p[..., 1]), axis=-1)
 
 
@@ -179,7 +187,11 @@ def world_to_robot(points_m, pose):
     """Points (..., 2) from the world frame to the robot frame of pose [x, y, heading]."""
     x, y, h = (float(v) for v in pose)
     c, s = math.cos(h), math.sin(h)
-    p = np.asarray(points_m, dtype=float) - np.array([x, y])
+    p = np.asarray(points_m, dtype=float)
+    if p.shape == (2,):
+        px, py = float(p[0]) - x, float(p[1]) - y
+        return np.array([c * px + s * py, -s * px + c * py])
+    p = p - np.array([x, y])
     return np.stack((c * p[..., 0] + s * p[..., 1], -s * p[..., 0] + c * p[..., 1]), axis=-1)
 
 
@@ -187,6 +199,9 @@ def rotate(vectors, angle_rad):
     """Rotate direction vectors (..., 2) counter-clockwise by angle_rad."""
     c, s = math.cos(angle_rad), math.sin(angle_rad)
     v = np.asarray(vectors, dtype=float)
+    if v.shape == (2,):
+        vx, vy = float(v[0]), float(v[1])
+        return np.array([c * vx - s * vy, s * vx + c * vy])
     return np.stack((c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1]), axis=-1)
 
 

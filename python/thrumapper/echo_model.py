@@ -33,6 +33,7 @@ import math
 import numpy as np
 
 from . import bistatic
+from . import thrumapper_python as _core
 from .building_sim import coefficient_table, interpolate_coefficients, slab_coefficients
 from .scene import MATERIAL_PRESETS, Material
 
@@ -117,6 +118,11 @@ class EchoModel:
         self._tables = {}
         self._k_hz = 2.0 * np.pi * self.freqs_hz / C  # wavenumbers, rad/m
         self._lambda_m = C / self.freqs_hz
+        # echo_csi's C++ core (slab_echo) and the ids of the tables registered with it, per
+        # material: {id(material): (material, Γ table id, T table id)}
+        self._echo_core = _core.slab_echo(self.tx_m, self.rx_m, self.carrier_hz, [float(f) for f in self.offsets_hz])
+        self._core_tables = {}
+        self._no_crossed = np.zeros((0, 2))
 
     def coefficients(self, material, cos_incidence, which=0):
         """Γ (which=0) or the insertion T (which=1) of a material at these incidence cosines
@@ -129,13 +135,42 @@ class EchoModel:
             self._tables[id(material)] = cached
         return interpolate_coefficients(cached[1][which], cos_incidence)
 
+    def _core_table_ids(self, material):
+        """(Γ, T) table ids of a material in the C++ core, registered on first use; -1, -1 for
+        None (echo_csi's perfect conductor: Γ = -1)."""
+        if material is None:
+            return -1, -1
+        cached = self._core_tables.get(id(material))
+        if cached is None or cached[0] is not material:
+            self.coefficients(material, 1.0)  # makes the material's table (a conductor's: Γ = -1, T = 0)
+            table = self._tables[id(material)][1]
+            cached = (material, self._echo_core.add_table(table[0]), self._echo_core.add_table(table[1]))
+            self._core_tables[id(material)] = cached
+        return cached[1], cached[2]
+
     # -- the echo ------------------------------------------------------------------------
     def echo_csi(self, face_point_m, normal, material, crossed=()):
         """(M, N) CSI of the specular echo of one wall, system delay 0, robot frame.
 
         crossed: walls in front of it, ((face_point, normal, material), ...): each leg that
         crosses one is multiplied by that wall's insertion transmission at the leg's angle.
+
+        Computed by the C++ core (thrumapper.slab_echo); echo_csi_reference is the same in
+        numpy (benchmarks/bench_echo_model.py compares them).
         """
+        gamma_id = self._core_table_ids(material)[0]
+        if crossed:
+            kept = [c for c in crossed if c[2] is not None]  # a crossed wall of no material: no loss
+            points = np.array([c[0] for c in kept], float).reshape(-1, 2)
+            normals = np.array([c[1] for c in kept], float).reshape(-1, 2)
+            ids = [self._core_table_ids(c[2])[1] for c in kept]
+            return self._echo_core.echo(face_point_m, normal, gamma_id, self.weights, points, normals, ids)
+        return self._echo_core.echo(face_point_m, normal, gamma_id, self.weights, self._no_crossed,
+                                    self._no_crossed, [])
+
+    def echo_csi_reference(self, face_point_m, normal, material, crossed=()):
+        """echo_csi in numpy: the plain reference of the benchmark (and the model's first
+        form)."""
         n = np.asarray(normal, float) / np.hypot(*normal)
         q = np.asarray(face_point_m, float)
         image = bistatic.mirror(self.tx_m, q, n)  # (K, 2)
@@ -207,7 +242,13 @@ class EchoModel:
         """(M, N) CSI of the double bounce TX → wall 1 → wall 2 → RX between two infinite
         faces (a corridor's walls facing each other), system delay 0, robot frame: each
         element pair's own path length and incidences, Γ of `material` at both bounces. A
-        pair whose bounces fall behind a focus or on a face's back adds nothing."""
+        pair whose bounces fall behind a focus or on a face's back adds nothing. The C++
+        core's (slab_echo.double_echo); double_csi_reference is the same in numpy."""
+        return self._echo_core.double_echo(first_point_m, first_normal, second_point_m, second_normal,
+                                           self._core_table_ids(material)[0], self.weights)
+
+    def double_csi_reference(self, first_point_m, first_normal, second_point_m, second_normal, material):
+        """double_csi in numpy (its first form)."""
         q1 = np.asarray(first_point_m, float)
         q2 = np.asarray(second_point_m, float)
         n1 = np.asarray(first_normal, float) / np.hypot(*first_normal)
@@ -226,7 +267,13 @@ class EchoModel:
         running into the side the other faces (a room's inside corner); normals point into
         the room. A pair (k, m) whose bounce points fall off either face adds nothing. For
         perpendicular faces the path is the one via the point image of TX through the
-        corner: the echo seems to come from the corner itself (a retro-reflector)."""
+        corner: the echo seems to come from the corner itself (a retro-reflector). The C++
+        core's (slab_echo.corner_echo); corner_csi_reference is the same in numpy."""
+        return self._echo_core.corner_echo(corner_m, normal_a, normal_b, self._core_table_ids(material)[0],
+                                           self.weights)
+
+    def corner_csi_reference(self, corner_m, normal_a, normal_b, material):
+        """corner_csi in numpy (its first form)."""
         c = np.asarray(corner_m, float)
         n_a = np.asarray(normal_a, float) / np.hypot(*normal_a)
         n_b = np.asarray(normal_b, float) / np.hypot(*normal_b)

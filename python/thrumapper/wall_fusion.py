@@ -1217,10 +1217,17 @@ class WallFusion:
         by_group = {}
         for i in np.flatnonzero(check):
             by_group.setdefault(int(group[i]), []).append(i)
+        # each wall's bounding box: a wall whose box is out of reach of a pose is out of reach
+        # (the exact test below then runs on the others only; a long survey has many walls)
+        ends = np.array([[w["centre"] + w["t0"] * w["direction"], w["centre"] + w["t1"] * w["direction"]]
+                         for w in walls])
+        box_lo, box_hi = ends.min(axis=1), ends.max(axis=1)
         for g, members in by_group.items():
             pose = poses[g]
+            outside = np.maximum(np.maximum(box_lo - pose[:2], pose[:2] - box_hi), 0.0)
+            near = np.flatnonzero(np.hypot(outside[:, 0], outside[:, 1]) <= 0.5 * s.max_range_m + 1e-9)
             lines = []
-            for k in range(len(walls)):
+            for k in near:
                 # only walls whose segment is within reach: a double bounce's two legs to it
                 # and back fit in the range
                 a = walls[k]["centre"] + walls[k]["t0"] * walls[k]["direction"]

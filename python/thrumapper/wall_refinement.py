@@ -267,26 +267,27 @@ class CsiWallRefiner:
         self.group_paths = group_paths
         self.hidden = list(hidden)
         self._double_cache = {}
+        # every wall's end points, for _crossed_for's test of all walls at once
+        self._ends = (np.array([w["centre"] + w["t0"] * w["direction"] for w in self.walls], float).reshape(-1, 2),
+                      np.array([w["centre"] + w["t1"] * w["direction"] for w in self.walls], float).reshape(-1, 2))
 
     def _crossed_for(self, k, among=None):
         """A function (specular point, pose) -> the line-of-sight walls the legs cross (of
-        the walls in `among` when given)."""
+        the walls in `among` when given), in the map's order."""
         walls, hidden = self.walls, self.hidden
+        if not hidden[k]:
+            return lambda spec, pose: []
+        candidates = np.array([j for j in range(len(walls)) if j != k and not hidden[j]
+                               and (among is None or j in among)], int)
+        if candidates.size == 0:
+            return lambda spec, pose: []
+        a0, a1 = self._ends[0][candidates], self._ends[1][candidates]
 
         def crossed(spec, pose):
-            if not hidden[k]:
-                return []
-            out = []
             tx_w = bistatic.robot_to_world(self.tx_c, pose)
             rx_w = bistatic.robot_to_world(self.rx_c, pose)
-            for j, c in enumerate(walls):
-                if j == k or hidden[j] or (among is not None and j not in among):
-                    continue
-                a0 = c["centre"] + c["t0"] * c["direction"]
-                a1 = c["centre"] + c["t1"] * c["direction"]
-                if bistatic.segments_cross(tx_w, spec, a0, a1) or bistatic.segments_cross(spec, rx_w, a0, a1):
-                    out.append(c)
-            return out
+            hit = bistatic.segments_cross(tx_w, spec, a0, a1) | bistatic.segments_cross(spec, rx_w, a0, a1)
+            return [walls[j] for j in candidates[hit]]
         return crossed
 
     def _basis(self, g, exclude, unexplained_paths=True):

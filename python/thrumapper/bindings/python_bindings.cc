@@ -22,6 +22,7 @@ void bind_channel_calibration(py::module& m);
 void bind_ofdm_sounder(py::module& m);
 void bind_ofdm_channel_estimator(py::module& m);
 void bind_channel_calibrator(py::module& m);
+void bind_slab_echo(py::module& m);
 
 // import_array() returns NULL on newer Pythons, hence the wrapper
 void* init_numpy()
@@ -48,4 +49,5 @@ PYBIND11_MODULE(thrumapper_python, m)
     bind_ofdm_sounder(m);
     bind_ofdm_channel_estimator(m);
     bind_channel_calibrator(m);
+    bind_slab_echo(m);
 }

@@ -1,0 +1,202 @@
+/* -*- c++ -*- */
+/*
+ * SPDX-License-Identifier: GPL-3.0-or-later
+ */
+#include <gnuradio/thrumapper/slab_echo.h>
+#include <boost/test/unit_test.hpp>
+#include <cmath>
+#include <stdexcept>
+
+using namespace gr::thrumapper;
+using cd = std::complex<double>;
+
+namespace {
+const double c_m_s = 299792458.0;
+
+std::vector<double> offsets(int n, double bandwidth_hz)
+{
+    std::vector<double> out(n);
+    for (int i = 0; i < n; i++)
+        out[i] = (i - n / 2) * bandwidth_hz / n;
+    return out;
+}
+
+Eigen::MatrixXd point(double x, double y)
+{
+    Eigen::MatrixXd p(1, 2);
+    p << x, y;
+    return p;
+}
+
+slab_echo::table_type constant_table(int rows, int n, cd value)
+{
+    return slab_echo::table_type::Constant(rows, n, value);
+}
+} // namespace
+
+BOOST_AUTO_TEST_CASE(slab_echo_conductor_wall_delay_and_spreading)
+{
+    // One TX element at (-0.35, 0), one RX element at (0.35, 0), a metal wall whose face is
+    // 2.2 m to the right (y = -2.2): the echo travels 2·sqrt(2.2² + 0.35²) m, so its phase
+    // falls by 2π·Δf·L/c per subcarrier and its amplitude is λ/(4πL) (free-space spreading
+    // from the TX image), with Γ = -1.
+    const int n = 64;
+    slab_echo core(point(-0.35, 0.0), point(0.35, 0.0), 2.44e9, offsets(n, 120e6));
+    BOOST_CHECK(core.uniform_subcarriers());
+    Eigen::VectorXcd w(1);
+    w << cd(1.0, 0.0);
+    const auto h = core.echo(Eigen::Vector2d(0.3, -2.2), Eigen::Vector2d(0.0, 1.0), -1, w,
+                             Eigen::MatrixXd(0, 2), Eigen::MatrixXd(0, 2), {});
+    BOOST_REQUIRE_EQUAL(h.rows(), 1);
+    BOOST_REQUIRE_EQUAL(h.cols(), n);
+    const double length_m = 2.0 * std::hypot(2.2, 0.35);
+    const double step_hz = 120e6 / n;
+    for (int i = 0; i + 1 < n; i++) {
+        const double dphi = std::arg(h(0, i + 1) / h(0, i));
+        BOOST_CHECK_SMALL(std::remainder(dphi + 2.0 * M_PI * step_hz * length_m / c_m_s, 2.0 * M_PI), 1e-9);
+    }
+    for (int i = 0; i < n; i++) {
+        const double f_hz = 2.44e9 + (i - n / 2) * step_hz;
+        BOOST_CHECK_CLOSE(std::abs(h(0, i)), c_m_s / f_hz / (4.0 * M_PI * length_m), 1e-9);
+        // the absolute phase: -1 (metal) times e^{-j2πfL/c}
+        const cd expected = -std::polar(1.0, -2.0 * M_PI * f_hz * length_m / c_m_s);
+        BOOST_CHECK_SMALL(std::abs(h(0, i) / std::abs(h(0, i)) - expected), 1e-9);
+    }
+}
+
+BOOST_AUTO_TEST_CASE(slab_echo_fast_phase_ramp_is_exact)
+{
+    // 8 + 8 elements on two circles, 256 subcarriers: the rotation per subcarrier (uniform
+    // subcarriers) and one sin/cos each (the same subcarriers moved by 1 mHz, not uniform)
+    // give the same echo to 1e-12 of its size.
+    Eigen::MatrixXd tx(8, 2), rx(8, 2);
+    for (int i = 0; i < 8; i++) {
+        tx.row(i) << -0.35 + 0.08 * std::cos(i * M_PI / 4), 0.08 * std::sin(i * M_PI / 4);
+        rx.row(i) << 0.35 + 0.08 * std::cos(i * M_PI / 4), 0.08 * std::sin(i * M_PI / 4);
+    }
+    auto uniform = offsets(256, 120e6);
+    auto jittered = uniform;
+    jittered[7] += 1e-3;
+    slab_echo a(tx, rx, 2.44e9, uniform), b(tx, rx, 2.44e9, jittered);
+    BOOST_CHECK(a.uniform_subcarriers());
+    BOOST_CHECK(!b.uniform_subcarriers());
+    Eigen::VectorXcd w(8);
+    for (int i = 0; i < 8; i++)
+        w(i) = std::polar(0.3 + 0.1 * i, 0.7 * i);
+    const Eigen::Vector2d q(1.0, 6.5), n(-0.3, -1.0); // a skewed wall 6.5 m away
+    const auto ha = a.echo(q, n, -1, w, Eigen::MatrixXd(0, 2), Eigen::MatrixXd(0, 2), {});
+    const auto hb = b.echo(q, n, -1, w, Eigen::MatrixXd(0, 2), Eigen::MatrixXd(0, 2), {});
+    double worst = 0.0;
+    for (int m = 0; m < 8; m++)
+        for (int i = 0; i < 256; i++)
+            if (i != 7)
+                worst = std::max(worst, std::abs(ha(m, i) - hb(m, i)));
+    BOOST_CHECK_SMALL(worst / ha.norm(), 1e-12);
+}
+
+BOOST_AUTO_TEST_CASE(slab_echo_tables_and_crossed_walls)
+{
+    const int n = 32;
+    slab_echo core(point(-0.35, 0.0), point(0.35, 0.0), 2.44e9, offsets(n, 120e6));
+    Eigen::VectorXcd w(1);
+    w << cd(1.0, 0.0);
+    const Eigen::MatrixXd none(0, 2);
+    const Eigen::Vector2d face(0.0, -2.2), up(0.0, 1.0);
+    const auto metal = core.echo(face, up, -1, w, none, none, {});
+    // Γ linear in the incidence angle, 0 at normal incidence and 1 at grazing: this pair sees
+    // the wall at atan(0.35 / 2.2) from its normal
+    slab_echo::table_type ramp(91, n);
+    for (int r = 0; r < 91; r++)
+        ramp.row(r).setConstant(cd(r / 90.0, 0.0));
+    const int gamma = core.add_table(ramp);
+    const auto h = core.echo(face, up, gamma, w, none, none, {});
+    const double incidence = std::atan2(0.35, 2.2) / (M_PI / 2.0);
+    BOOST_CHECK_SMALL((h + incidence * metal).norm() / metal.norm(), 1e-9);
+    // a wall of transmission 0.5 at y = -1: both legs cross it (0.25); at y = +1, behind the
+    // radar, neither does; one from (0, -3) to ... across the bounce's leg only: a wall along
+    // x = 0.1 cuts the leg bounce -> RX (the bounce is at x = 0), not TX -> bounce
+    const int half = core.add_table(constant_table(2, n, cd(0.5, 0.0)));
+    const auto both = core.echo(face, up, -1, w, point(0.0, -1.0), point(0.0, 1.0), { half });
+    BOOST_CHECK_SMALL((both - 0.25 * metal).norm() / metal.norm(), 1e-12);
+    const auto neither = core.echo(face, up, -1, w, point(0.0, 1.0), point(0.0, 1.0), { half });
+    BOOST_CHECK_SMALL((neither - metal).norm() / metal.norm(), 1e-12);
+    const auto one = core.echo(face, up, -1, w, point(0.1, 0.0), point(1.0, 0.0), { half });
+    BOOST_CHECK_SMALL((one - 0.5 * metal).norm() / metal.norm(), 1e-12);
+    // table -1 for a crossed wall: ignored
+    const auto ignored = core.echo(face, up, -1, w, point(0.0, -1.0), point(0.0, 1.0), { -1 });
+    BOOST_CHECK_SMALL((ignored - metal).norm() / metal.norm(), 1e-12);
+}
+
+namespace {
+// h, one RX element, against a path of length L with gain +1: phase −2πfL/c, size λ/(4πL)
+void check_single_path(const slab_echo::table_type& h, double length_m, int n)
+{
+    for (int i = 0; i < n; i++) {
+        const double f_hz = 2.44e9 + (i - n / 2) * 120e6 / n;
+        const cd expected = std::polar(c_m_s / f_hz / (4.0 * M_PI * length_m), -2.0 * M_PI * f_hz * length_m / c_m_s);
+        BOOST_CHECK_SMALL(std::abs(h(0, i) - expected) / std::abs(expected), 1e-9);
+    }
+}
+} // namespace
+
+BOOST_AUTO_TEST_CASE(slab_echo_double_bounce_between_metal_walls)
+{
+    // TX (−0.35, 0) → the metal wall y = −1 → the metal wall y = 1.3 → RX (0.35, 0): TX
+    // imaged in both walls is (−0.35, 4.6), so the path is |(0.35, 0) − (−0.35, 4.6)| long,
+    // with (−1)² = +1 for the two bounces
+    const int n = 32;
+    slab_echo core(point(-0.35, 0.0), point(0.35, 0.0), 2.44e9, offsets(n, 120e6));
+    Eigen::VectorXcd w(1);
+    w << cd(1.0, 0.0);
+    const Eigen::Vector2d south(0.0, -1.0), north(0.0, 1.3), up(0.0, 1.0), down(0.0, -1.0);
+    check_single_path(core.double_echo(south, up, north, down, -1, w), std::hypot(0.7, 4.6), n);
+    // faces turned away from the radar: no such path
+    BOOST_CHECK_EQUAL(core.double_echo(south, down, north, up, -1, w).norm(), 0.0);
+}
+
+BOOST_AUTO_TEST_CASE(slab_echo_corner_is_a_retro_reflector)
+{
+    // A room's inside corner at (2, −3), metal faces along y = −3 (toward −x) and x = 2
+    // (toward +y), the radar inside: the path via face a then face b comes from TX's point
+    // image through the corner, 2C − TX = (4.35, −6), and is |RX − (4.35, −6)| long; the
+    // other order's bounces fall off the faces here
+    const int n = 32;
+    slab_echo core(point(-0.35, 0.0), point(0.35, 0.0), 2.44e9, offsets(n, 120e6));
+    Eigen::VectorXcd w(1);
+    w << cd(1.0, 0.0);
+    const Eigen::Vector2d corner(2.0, -3.0), into_a(0.0, 1.0), into_b(-1.0, 0.0);
+    check_single_path(core.corner_echo(corner, into_a, into_b, -1, w), std::hypot(4.0, 6.0), n);
+    // the order of the faces does not matter
+    const auto h = core.corner_echo(corner, into_a, into_b, -1, w);
+    BOOST_CHECK_SMALL((core.corner_echo(corner, into_b, into_a, -1, w) - h).norm() / h.norm(), 1e-12);
+    // the radar outside the room (a face's normal turned away): nothing
+    BOOST_CHECK_EQUAL(core.corner_echo(corner, into_a, -into_b, -1, w).norm(), 0.0);
+    // Γ of a table: a constant 0.5 at both bounces gives a quarter
+    const int half = core.add_table(constant_table(2, n, cd(0.5, 0.0)));
+    BOOST_CHECK_SMALL((core.corner_echo(corner, into_a, into_b, half, w) - 0.25 * h).norm() / h.norm(), 1e-12);
+}
+
+BOOST_AUTO_TEST_CASE(slab_echo_bad_input)
+{
+    const int n = 16;
+    slab_echo core(point(-0.35, 0.0), point(0.35, 0.0), 2.44e9, offsets(n, 120e6));
+    Eigen::VectorXcd w(1), w2(2);
+    w << cd(1.0, 0.0);
+    w2 << cd(1.0, 0.0), cd(1.0, 0.0);
+    const Eigen::MatrixXd none(0, 2);
+    const Eigen::Vector2d face(0.0, -2.2), up(0.0, 1.0);
+    BOOST_CHECK_THROW(core.echo(face, up, -1, w2, none, none, {}), std::invalid_argument);
+    BOOST_CHECK_THROW(core.echo(face, Eigen::Vector2d(0.0, 0.0), -1, w, none, none, {}),
+                      std::invalid_argument);
+    BOOST_CHECK_THROW(core.echo(face, up, 3, w, none, none, {}), std::invalid_argument);
+    BOOST_CHECK_THROW(core.echo(face, up, -1, w, point(0, 1), point(0, 1), { 0 }), std::invalid_argument);
+    BOOST_CHECK_THROW(core.echo(face, up, -1, w, none, none, { -1 }), std::invalid_argument);
+    BOOST_CHECK_THROW(core.corner_echo(face, up, Eigen::Vector2d(0.0, 0.0), -1, w), std::invalid_argument);
+    BOOST_CHECK_THROW(core.double_echo(face, up, face, -up, -1, w2), std::invalid_argument);
+    BOOST_CHECK_THROW(core.add_table(constant_table(1, n, cd(1.0, 0.0))), std::invalid_argument);
+    BOOST_CHECK_THROW(core.add_table(constant_table(4, n + 1, cd(1.0, 0.0))), std::invalid_argument);
+    BOOST_CHECK_THROW(core.add_table(constant_table(4, n, cd(NAN, 0.0))), std::invalid_argument);
+    BOOST_CHECK_THROW(slab_echo(Eigen::MatrixXd(1, 3), point(0, 0), 2.44e9, offsets(n, 120e6)),
+                      std::invalid_argument);
+    BOOST_CHECK_THROW(slab_echo(point(0, 0), point(0, 0), 2.44e9, {}), std::invalid_argument);
+}
