@@ -14,6 +14,7 @@ from gnuradio import blocks, gr, gr_unittest
 
 from gnuradio import thrumapper
 from gnuradio.thrumapper import building_sim, scene as scene_mod
+from gnuradio.thrumapper.testing import free_finished_flowgraphs
 
 
 def small_scene():
@@ -47,6 +48,9 @@ def frames_and_tags(sink, sounding):
 
 
 class qa_iq_recording(gr_unittest.TestCase):
+    def tearDown(self):
+        free_finished_flowgraphs()
+
     def test_recorded_survey_replays_to_the_same_csi(self):
         scene = small_scene()
         r = scene.radar

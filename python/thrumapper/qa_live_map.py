@@ -18,6 +18,7 @@ import pmt  # noqa: E402
 from gnuradio import blocks, gr, gr_unittest  # noqa: E402
 from gnuradio import thrumapper  # noqa: E402
 from gnuradio.thrumapper.live_map import live_map, map_from_pmt, LiveMapError  # noqa: E402
+from gnuradio.thrumapper.testing import free_finished_flowgraphs  # noqa: E402
 
 
 def f64(values):
@@ -96,6 +97,8 @@ class qa_live_map(gr_unittest.TestCase):
     def tearDown(self):
         self.tb.stop()
         self.tb.wait()
+        self.tb = None
+        free_finished_flowgraphs()
 
     def test_worked_example_echo_position(self):
         """The yml's worked example: robot at [2, 0, 0], a path at 243.43°, 5.221 ns → the

@@ -11,7 +11,7 @@ import pmt
 from gnuradio import blocks, gr, gr_unittest
 
 from gnuradio import thrumapper
-from gnuradio.thrumapper.testing import wait_for
+from gnuradio.thrumapper.testing import free_finished_flowgraphs, wait_for
 
 
 
@@ -64,6 +64,9 @@ def run_estimator(sounding, streams, tags=(), **kwargs):
 
 
 class qa_ofdm_channel_estimator(gr_unittest.TestCase):
+    def tearDown(self):
+        free_finished_flowgraphs()
+
     def setUp(self):
         self.radar = thrumapper.radar_description.make_uca_pair()
         self.sounding = thrumapper.ofdm_sounding.make(self.radar)

@@ -14,7 +14,7 @@ from gnuradio import blocks, gr, gr_unittest
 
 from gnuradio.thrumapper import bistatic, evaluation
 from gnuradio.thrumapper.survey_blocks import pose_message
-from gnuradio.thrumapper.testing import drifting_corridor, exact_echoes, straight_poses, wait_for
+from gnuradio.thrumapper.testing import drifting_corridor, exact_echoes, free_finished_flowgraphs, straight_poses, wait_for
 from gnuradio.thrumapper.wall_fusion import (HIDDEN, LOS, FusionError, FusionSettings, RadarGeometry, WallFusion,
                                              map_to_pmt, wall_fusion)
 
@@ -37,6 +37,9 @@ def wall_near(fused, y, cls=None):
 
 
 class qa_wall_fusion(gr_unittest.TestCase):
+    def tearDown(self):
+        free_finished_flowgraphs()
+
     # -- the library on exact echoes ---------------------------------------------------------
     def test_corridor_with_hidden_wall_clutter_and_ghosts(self):
         """Two corridor walls, a hidden wall behind the south one, a desk between them, the

@@ -18,7 +18,7 @@ from gnuradio import blocks, gr, gr_unittest
 from gnuradio import thrumapper as tm
 from gnuradio.thrumapper import bistatic, building_sim, cli_map, evaluation, scene, survey
 from gnuradio.thrumapper.wall_fusion import FusionSettings as wf_settings
-from gnuradio.thrumapper.testing import wait_for
+from gnuradio.thrumapper.testing import free_finished_flowgraphs, wait_for
 from gnuradio.thrumapper.wall_fusion import RadarGeometry, wall_fusion
 from gnuradio.thrumapper.wall_refinement import CsiWallRefiner
 
@@ -136,6 +136,9 @@ def wall(face_y, tilt_deg=0.0, robot_side=1.0):
 
 
 class qa_wall_refinement(gr_unittest.TestCase):
+    def tearDown(self):
+        free_finished_flowgraphs()
+
     def assert_walls_along_x(self, name, fused, expected, los_tolerance_m):
         """The map has exactly the walls `expected` [(face y, class)], north to south, each
         along x with both ends on its face (hidden walls within 12 cm)."""
