@@ -227,3 +227,15 @@ def segments_cross(p0, p1, a, b):
     d3 = orient(p0, p1, a)
     d4 = orient(p0, p1, b)
     return (d1 * d2 < 0) & (d3 * d4 < 0)
+
+
+def segment_crosses(p0x, p0y, p1x, p1y, ax, ay, bx, by):
+    """segments_cross for one pair of segments given as floats (the same arithmetic, without
+    numpy's overhead on 2-vectors: the CSI fits ask it for every trial wall and pose)."""
+    d1 = (bx - ax) * (p0y - ay) - (by - ay) * (p0x - ax)
+    d2 = (bx - ax) * (p1y - ay) - (by - ay) * (p1x - ax)
+    if not d1 * d2 < 0:
+        return False
+    d3 = (p1x - p0x) * (ay - p0y) - (p1y - p0y) * (ax - p0x)
+    d4 = (p1x - p0x) * (by - p0y) - (p1y - p0y) * (bx - p0x)
+    return d3 * d4 < 0

@@ -140,6 +140,19 @@ class qa_bistatic(gr_unittest.TestCase):
         error = np.linalg.norm(h_model - h_sim) / np.linalg.norm(h_sim)
         self.assertLess(error, 1e-4)
 
+    def test_segment_crossings(self):
+        """A leg crosses a wall only properly: an X crosses, a T whose stem ends on the bar
+        does not, nor parallel or disjoint segments; the float form and the array form agree."""
+        cases = [((0, 0, 2, 2, 0, 2, 2, 0), True),    # an X
+                 ((0, 0, 1, 1, 0, 2, 2, 0), False),   # the stem ends on the bar: touching
+                 ((0, 0, 2, 0, 0, 1, 2, 1), False),   # parallel
+                 ((0, 0, 1, 0, 2, -1, 2, 1), False),  # short of the wall
+                 ((-0.35, 0, 0.3, -2.2, -3, -1, 3, -1), True)]  # a TX leg through a corridor wall
+        for args, expected in cases:
+            self.assertEqual(bistatic.segment_crosses(*map(float, args)), expected, args)
+            p = np.array(args, float).reshape(4, 2)
+            self.assertEqual(bool(bistatic.segments_cross(p[0], p[1], p[2], p[3])), expected, args)
+
     def test_hidden_wall_echo_matches_the_simulator(self):
         """A plasterboard wall 2 m behind another: echo_csi of the front wall plus echo_csi of
         the back one with both of its legs through the front wall (its insertion T at each leg's

@@ -281,13 +281,15 @@ class CsiWallRefiner:
                                and (among is None or j in among)], int)
         if candidates.size == 0:
             return lambda spec, pose: []
-        a0, a1 = self._ends[0][candidates], self._ends[1][candidates]
+        segments = [(int(j), *self._ends[0][j].tolist(), *self._ends[1][j].tolist()) for j in candidates]
+        cross = bistatic.segment_crosses
 
         def crossed(spec, pose):
-            tx_w = bistatic.robot_to_world(self.tx_c, pose)
-            rx_w = bistatic.robot_to_world(self.rx_c, pose)
-            hit = bistatic.segments_cross(tx_w, spec, a0, a1) | bistatic.segments_cross(spec, rx_w, a0, a1)
-            return [walls[j] for j in candidates[hit]]
+            tx_x, tx_y = bistatic.robot_to_world(self.tx_c, pose).tolist()
+            rx_x, rx_y = bistatic.robot_to_world(self.rx_c, pose).tolist()
+            s_x, s_y = float(spec[0]), float(spec[1])
+            return [walls[j] for j, ax, ay, bx, by in segments
+                    if cross(tx_x, tx_y, s_x, s_y, ax, ay, bx, by) or cross(s_x, s_y, rx_x, rx_y, ax, ay, bx, by)]
         return crossed
 
     def _basis(self, g, exclude, unexplained_paths=True):
