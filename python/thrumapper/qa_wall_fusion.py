@@ -15,8 +15,8 @@ from gnuradio import blocks, gr, gr_unittest
 from gnuradio.thrumapper import bistatic, evaluation
 from gnuradio.thrumapper.survey_blocks import pose_message
 from gnuradio.thrumapper.testing import drifting_corridor, exact_echoes, free_finished_flowgraphs, straight_poses, wait_for
-from gnuradio.thrumapper.wall_fusion import (HIDDEN, LOS, FusionError, FusionSettings, RadarGeometry, WallFusion,
-                                             map_to_pmt, wall_fusion)
+from gnuradio.thrumapper.wall_fusion import (HIDDEN, LOS, FusionError, FusionSettings, MapWall, RadarGeometry,
+                                             WallFusion, map_to_pmt, wall_fusion)
 
 C = bistatic.SPEED_OF_LIGHT_M_S
 RADAR = RadarGeometry.uca_pair(subcarriers=64)
@@ -39,6 +39,54 @@ def wall_near(fused, y, cls=None):
 class qa_wall_fusion(gr_unittest.TestCase):
     def tearDown(self):
         free_finished_flowgraphs()
+
+    # -- rooms closed at end walls ----------------------------------------------------------
+    def test_room_closed_at_the_end_wall(self):
+        """A corridor along x (walls at y = -0.7 and +1.3) ends at an end wall across it at
+        x = 6.5; a room's back wall 1.6 m behind the south wall ends 0.3 m short of the end
+        wall's line: the end wall is drawn on from its corner with the south wall to
+        (6.5, -2.3), the back wall on to the same point, both inferred and hidden, with a
+        hidden corner there; a room behind the north wall likewise at the north corner. Not
+        when the back wall ends 0.8 m short, runs 20° off the side wall, or stands behind a
+        side wall the end wall has no corner with."""
+        fusion = WallFusion(RADAR, FusionSettings(material=None))
+        south = {"centre": np.array([3.0, -0.7]), "normal": np.array([0.0, 1.0]), "direction": np.array([1.0, 0.0]),
+                 "t0": -3.0, "t1": 3.5}
+        north = {"centre": np.array([3.0, 1.3]), "normal": np.array([0.0, -1.0]), "direction": np.array([1.0, 0.0]),
+                 "t0": -3.0, "t1": 3.5}
+        end_wall = {"centre": np.array([6.5, 0.3]), "normal": np.array([-1.0, 0.0]), "direction": np.array([0.0, 1.0]),
+                    "t0": -1.0, "t1": 1.0, "corners": [(np.array([6.5, -0.7]), 0), (np.array([6.5, 1.3]), 1)],
+                    "poses": 10, "confidence": 0.8}
+
+        def hidden(start, end):
+            return MapWall(np.array(start, float), np.array(end, float), np.array([0.0, 1.0]), "hidden", 0.6, 20, 20, 0.02)
+
+        walls = [hidden([0.0, -2.3], [6.2, -2.3])]
+        closing, corners = fusion._rooms_closed_at_end_walls(walls, [end_wall], [south, north])
+        self.assertEqual(len(closing), 2)
+        self.assertTrue(all(w.inferred and w.cls == "hidden" for w in closing))
+        across, along = closing
+        np.testing.assert_allclose(across.start_m, [6.5, -0.7], atol=1e-9)
+        np.testing.assert_allclose(across.end_m, [6.5, -2.3], atol=1e-9)
+        np.testing.assert_allclose(along.start_m, [6.2, -2.3], atol=1e-9)
+        np.testing.assert_allclose(along.end_m, [6.5, -2.3], atol=1e-9)
+        self.assertAlmostEqual(across.confidence, 0.3)
+        self.assertEqual(len(corners), 1)
+        np.testing.assert_allclose(corners[0].position_m, [6.5, -2.3], atol=1e-9)
+        self.assertEqual(corners[0].cls, "hidden")
+        self.assertEqual(corners[0].walls, (1, 0))  # the first closing wall (after `walls`), the back wall
+        # a back wall reaching the end wall's line: only the end wall is drawn on
+        closing, _ = fusion._rooms_closed_at_end_walls([hidden([0.0, -2.3], [6.5, -2.3])], [end_wall], [south, north])
+        self.assertEqual(len(closing), 1)
+        # the same room behind the north wall closes at the north corner
+        closing, _ = fusion._rooms_closed_at_end_walls([hidden([0.0, 3.0], [6.2, 3.0])], [end_wall], [south, north])
+        np.testing.assert_allclose(closing[0].start_m, [6.5, 1.3], atol=1e-9)
+        np.testing.assert_allclose(closing[0].end_m, [6.5, 3.0], atol=1e-9)
+        south_only = dict(end_wall, corners=end_wall["corners"][:1])
+        for far in ([hidden([0.0, -2.3], [5.7, -2.3])],                    # ends 0.8 m short
+                    [hidden([0.0, -4.5], [6.2, -2.3])],                    # 20° off the side wall
+                    [hidden([0.0, 3.0], [6.2, 3.0])]):                      # behind the other side wall
+            self.assertEqual(fusion._rooms_closed_at_end_walls(far, [south_only], [south, north])[0], [])
 
     # -- the library on exact echoes ---------------------------------------------------------
     def test_corridor_with_hidden_wall_clutter_and_ghosts(self):

@@ -649,6 +649,12 @@ class WallFusion:
     END_WALL_RISE = 1.2
     #: ...and, beyond an axial landmark's end of the track, within this of the landmark
     AXIAL_END_WINDOW_M = 0.5
+    #: rooms closed at end walls (_rooms_closed_at_end_walls): a hidden wall behind a side
+    #: wall (within ROOM_PARALLEL_DEG of it, at most ROOM_DEPTH_M behind) whose end lies
+    #: within ROOM_CLOSE_M of an end wall's line meets it there
+    ROOM_PARALLEL_DEG = 10.0
+    ROOM_DEPTH_M = 6.0
+    ROOM_CLOSE_M = 0.5
     #: side walls (_side_walls): across the track from a line-of-sight wall along it, where
     #: at least SIDE_WALL_MIN_POSES consecutive poses see no wall on that side, a parallel
     #: wall is searched for in steps of SIDE_WALL_STEP_M, from SIDE_WALL_MIN_M to
@@ -2787,6 +2793,9 @@ class WallFusion:
                                      count, 0.0, source=source))
         for _, others in split_pieces:  # after everything the corners index
             walls.extend(others)
+        closing, room_corners = self._rooms_closed_at_end_walls(walls, end_walls, walls_in)
+        walls.extend(closing)
+        corners.extend(room_corners)
         for cls in CLASSES:
             detections[cls] = np.array(detections[cls]).reshape(-1, 2)
             echoes[cls] = np.array(echoes[cls]).reshape(-1, 2)
@@ -2927,6 +2936,61 @@ class WallFusion:
                 if hi > reach:
                     reach, last = hi, w
         return bridges
+
+    def _rooms_closed_at_end_walls(self, walls, end_walls, walls_in):
+        """Inferred walls where a room behind a side wall closes at the corridor's end wall:
+        the end wall (found on the CSI, _end_walls) goes on past its corner with the side
+        wall, through it, to the room's back wall when a hidden wall behind that side wall
+        (parallel to it within ROOM_PARALLEL_DEG, at most ROOM_DEPTH_M behind) ends within
+        ROOM_CLOSE_M of the end wall's line; the back wall is drawn on to the meeting point
+        too where it stops short. Neither stretch gives an echo the track can see (the end
+        wall's face inside the room is across the track, behind the side wall), so both are
+        "inferred" (dotted), hidden, with half the weaker wall's confidence, and the meeting
+        point is a hidden corner. Returns (walls, corners); the corners index `walls` as it
+        will be with the returned walls appended."""
+        out, corners = [], []
+        cos_parallel = math.cos(math.radians(self.ROOM_PARALLEL_DEG))
+        hidden = [w for w in walls if w.cls == CLASSES[HIDDEN] and w.source == "echoes"]
+        for e in end_walls:
+            confidence_e = e["confidence"]
+            toward_track = e["normal"]  # from the end wall's face back along the track
+            for corner, k in e["corners"]:
+                side = walls_in[k]
+                beyond = None  # the hidden wall nearest behind this side wall that ends on the line
+                for h in hidden:
+                    d_h = (h.end_m - h.start_m) / max(h.length_m, 1e-12)
+                    if abs(d_h @ side["direction"]) < cos_parallel:
+                        continue
+                    depth = float((side["centre"] - 0.5 * (h.start_m + h.end_m)) @ side["normal"])
+                    if not 0.0 < depth <= self.ROOM_DEPTH_M:
+                        continue  # not behind the side wall, seen from the track
+                    end = min((h.start_m, h.end_m), key=lambda q: float((q - e["centre"]) @ toward_track))
+                    gap = float((end - e["centre"]) @ toward_track)  # > 0: short of the end wall's line
+                    if not -self.ROOM_CLOSE_M <= gap <= self.ROOM_CLOSE_M:
+                        continue
+                    if beyond is None or depth < beyond[0]:
+                        beyond = (depth, h, end)
+                if beyond is None:
+                    continue
+                _, h, end = beyond
+                try:
+                    meet = bistatic.lines_meet(e["centre"], e["normal"], end, h.normal)
+                except bistatic.GeometryError:
+                    continue
+                corner = np.asarray(corner, float)
+                if np.hypot(*(meet - corner)) > self.ROOM_DEPTH_M + self.ROOM_CLOSE_M:
+                    continue
+                confidence = 0.5 * min(confidence_e, h.confidence)
+                pieces = [(corner, meet)]
+                if float((end - e["centre"]) @ toward_track) > 0.05:  # the back wall stops short
+                    pieces.append((end.copy(), meet.copy()))
+                for (a, b), normal in zip(pieces, (e["normal"], h.normal)):
+                    out.append(MapWall(a.copy(), b.copy(), np.asarray(normal, float).copy(), CLASSES[HIDDEN], confidence,
+                                       0, 0, 0.0, source="inferred"))
+                corners.append(MapCorner(meet.copy(), confidence, CLASSES[HIDDEN], 0,
+                                         (len(walls) + len(out) - len(pieces),
+                                          next(i for i, w in enumerate(walls) if w is h))))
+        return out, corners
 
     def _fused_point(self, wall, pose, measured):
         """The fitted wall's specular point seen from this pose (image method between the
