@@ -65,7 +65,7 @@ def _get(d, key, default=None):
 
 def map_from_pmt(msg):
     """wall_fusion's map message as plain Python: {"walls": [(cls, confidence, start (2,),
-    end (2,))], "corners": [(position (2,), confidence)], "detections": {cls: (n, 2)},
+    end (2,), source)], "corners": [(position (2,), confidence)], "detections": {cls: (n, 2)},
     "trajectory": (n, 3), "num_poses": int}. Raises LiveMapError naming the bad entry."""
     if not pmt.is_dict(msg):
         raise LiveMapError("map message: expected a dict (wall_fusion's \"map\" port)")
@@ -88,7 +88,9 @@ def map_from_pmt(msg):
             start, end = _f64(start, f"walls[{i}].start"), _f64(end, f"walls[{i}].end")
             if start.shape != (2,) or end.shape != (2,) or not np.all(np.isfinite(np.r_[start, end])):
                 raise LiveMapError(f"map message: walls[{i}] start/end must be finite [x, y]")
-            walls.append((cls, float(np.clip(conf, 0.0, 1.0)), start, end))
+            source = _get(w, "source")  # how it was found: echoes, end_wall, side_wall, inferred
+            source = pmt.symbol_to_string(source) if source is not None and pmt.is_symbol(source) else "echoes"
+            walls.append((cls, float(np.clip(conf, 0.0, 1.0)), start, end, source))
     corners = []
     vec = _get(msg, "corners")
     if vec is not None and pmt.is_vector(vec):
@@ -434,7 +436,7 @@ def _widget_class():
             points = [np.zeros((0, 2))]
             m = snap["map"]
             if m is not None:
-                points += [np.array([start, end]) for _, _, start, end in m["walls"]]
+                points += [np.array([start, end]) for _, _, start, end, _ in m["walls"]]
                 points += [np.array([p]) for p, _ in m["corners"]]
                 points += [d for d in m["detections"].values()]
                 points.append(m["trajectory"][:, :2])
@@ -459,10 +461,14 @@ def _widget_class():
             m = snap["map"]  # (redraw is only called when _drawable)
             if m is not None:
                 labelled = set()
-                for cls, conf, start, end in m["walls"]:
-                    label = None if cls in labelled else f"wall, {cls.replace('_', ' ')}"
-                    labelled.add(cls)
-                    ax.plot([start[0], end[0]], [start[1], end[1]], "-", color=COLOURS.get(cls, "tab:green"),
+                for cls, conf, start, end, source in m["walls"]:
+                    # as in the PNG: dash-dot found on the CSI alone, dotted inferred (not seen)
+                    style, found_by = {"end_wall": ("-.", ", found on the CSI"),
+                                       "side_wall": ("-.", ", found on the CSI"),
+                                       "inferred": (":", ", inferred")}.get(source, ("-", ""))
+                    label = None if (cls, found_by) in labelled else f"wall, {cls.replace('_', ' ')}{found_by}"
+                    labelled.add((cls, found_by))
+                    ax.plot([start[0], end[0]], [start[1], end[1]], style, color=COLOURS.get(cls, "tab:green"),
                             lw=1.0 + 2.5 * conf, label=label, solid_capstyle="butt")
                 for cls in CLASSES:
                     d = m["detections"].get(cls)

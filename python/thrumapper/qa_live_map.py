@@ -40,7 +40,8 @@ def map_message():
     1.65 m behind it, a corner, detections and three poses."""
     walls = pmt.make_vector(2, pmt.PMT_NIL)
     pmt.vector_set(walls, 0, wall("line_of_sight", 0.9, [0.0, -0.7], [5.0, -0.7]))
-    pmt.vector_set(walls, 1, wall("hidden", 0.5, [0.0, -2.35], [4.0, -2.35]))
+    pmt.vector_set(walls, 1, pmt.dict_add(wall("hidden", 0.5, [0.0, -2.35], [4.0, -2.35]), pmt.intern("source"),
+                                          pmt.intern("inferred")))
     corners = pmt.make_vector(1, pmt.PMT_NIL)
     c = pmt.dict_add(pmt.make_dict(), pmt.intern("position"), f64([6.5, -0.7]))
     c = pmt.dict_add(c, pmt.intern("confidence"), pmt.from_double(0.8))
@@ -144,6 +145,8 @@ class qa_live_map(gr_unittest.TestCase):
         snap = self.live.snapshot()
         m = snap["map"]
         self.assertEqual([w[0] for w in m["walls"]], ["line_of_sight", "hidden"])
+        # how each wall was found: the message's "source", "echoes" when it has none
+        self.assertEqual([w[4] for w in m["walls"]], ["echoes", "inferred"])
         np.testing.assert_allclose(m["walls"][1][2], [0.0, -2.35])
         self.assertEqual(m["trajectory"].shape, (3, 3))
         np.testing.assert_allclose(m["detections"]["line_of_sight"], [[1.0, -0.7], [2.0, -0.7]])

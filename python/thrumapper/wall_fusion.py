@@ -3040,9 +3040,10 @@ def plot_map(fused, png_path, title=None, truth=None, dpi=120):
     styles = {"inferred": ":", "end_wall": "-.", "side_wall": "-."}
     for w in fused.walls:
         xy = np.vstack((w.start_m, w.end_m))
-        kind = (w.cls, w.source in ("end_wall", "side_wall"))
-        label = None if kind in labelled else \
-            f"wall, {w.cls.replace('_', ' ')}" + (", found on the CSI" if kind[1] else "")
+        found_by = {"end_wall": ", found on the CSI", "side_wall": ", found on the CSI",
+                    "inferred": ", inferred (not seen)"}.get(w.source, "")
+        kind = (w.cls, found_by)
+        label = None if kind in labelled else f"wall, {w.cls.replace('_', ' ')}" + found_by
         labelled.add(kind)
         ax.plot(xy[:, 0], xy[:, 1], styles.get(w.source, "-"), color=colours[w.cls],
                 lw=1.0 + 2.5 * w.confidence, label=label)
