@@ -3018,7 +3018,7 @@ def plot_map(fused, png_path, title=None, truth=None, dpi=120):
     import matplotlib.pyplot as plt
 
     colours = {"line_of_sight": "tab:blue", "hidden": "tab:orange"}
-    fig, ax = plt.subplots(figsize=(10, 6), dpi=dpi)
+    fig, ax = plt.subplots(figsize=(12, 6), dpi=dpi)
     if truth is not None:
         if not isinstance(truth, dict):
             with open(truth, encoding="utf-8") as handle:
@@ -3070,9 +3070,10 @@ def plot_map(fused, png_path, title=None, truth=None, dpi=120):
     ax.set_ylabel("y (m, world)")
     ax.set_title(title or f"thrumapper map: {len(fused.walls)} walls, {len(fused.corners)} corners, "
                           f"{len(fused.trajectory)} poses")
-    ax.legend(loc="best", fontsize=7, framealpha=0.8)
+    # beside the map, not on it: on a long floor plan no corner of the axes is free
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=7, framealpha=0.8)
     fig.tight_layout()
-    fig.savefig(png_path)
+    fig.savefig(png_path, bbox_inches="tight")
     plt.close(fig)
 
 
