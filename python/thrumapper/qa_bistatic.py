@@ -170,6 +170,13 @@ class qa_bistatic(gr_unittest.TestCase):
         # the numpy form of the model (the benchmark's reference) agrees
         reference = model.echo_csi_reference([0.0, -3.2 + 0.075], up, plaster, ((np.array([0.0, -1.2]), up, plaster),))
         self.assertLess(np.linalg.norm(back - reference) / np.linalg.norm(back), 1e-9)
+        # a wall the model cannot place: one clear error, not NaN in the CSI
+        with self.assertRaisesRegex(ValueError, "nonzero normal"):
+            model.echo_csi([0.0, -1.125], [0.0, 0.0], plaster)
+        with self.assertRaisesRegex(ValueError, "finite face point"):
+            model.echo_csi([np.nan, -1.125], up, plaster)
+        with self.assertRaisesRegex(ValueError, "crossed wall 0"):
+            model.echo_csi([0.0, -3.125], up, plaster, ((np.array([np.nan, -1.2]), up, plaster),))
 
     def test_corner_echo_matches_the_simulator(self):
         """corner_csi (both bounce orders per element pair, Γ at each bounce's incidence, TX
