@@ -411,14 +411,22 @@ class CsiWallRefiner:
             basis = self._basis(g, k) if bases is None else bases[g]
             prepared.append((g, self._project_out(self.poses[g].rows.T, basis).T, basis))
 
-        def objective(offset, rotation):
-            trial = _moved_wall(base, pivot, offset, rotation)
-            total = 0.0
+        def objective(trials):
+            # J of each trial (offset, rotation), the echoes of all of them projected at once
+            # per group (the search asks for a stencil of up to 9 at a time)
+            walls = [_moved_wall(base, pivot, offset, rotation) for offset, rotation in trials]
+            totals = np.zeros(len(trials))
             for g, rows, basis in prepared:
-                e = self._echo(self.poses[g], trial, self.world_poses[g], crossed, material, doubles=doubles)
-                if e is not None:
-                    total += self._explained(e[0], basis, rows)
-            return total
+                data, pose = self.poses[g], self.world_poses[g]
+                seen, echoes = [], []
+                for t, trial in enumerate(walls):
+                    e = self._echo(data, trial, pose, crossed, material, doubles=doubles)
+                    if e is not None:
+                        seen.append(t)
+                        echoes.append(e[0])
+                if seen:
+                    totals[seen] += self._explained_many(np.array(echoes), basis, rows)
+            return totals
 
         offset, rotation = _quadratic_search(
             objective, s.max_offset_m, math.radians(s.max_rotation_deg), step_m, math.radians(step_deg),
@@ -690,6 +698,15 @@ class CsiWallRefiner:
         norm = np.vdot(v, v).real
         return float(np.sum(np.abs(rows @ v.conj()) ** 2) / norm) if norm > 0 else 0.0
 
+    @staticmethod
+    def _explained_many(echoes, basis, rows):
+        """_explained of each row of echoes (T, M*N) at once: (T,)."""
+        if basis is not None:
+            echoes = echoes - (echoes @ basis.conj()) @ basis.T
+        norms = np.sum(np.abs(echoes) ** 2, axis=1)
+        captured = np.sum(np.abs(echoes.conj() @ rows.T) ** 2, axis=1)
+        return np.where(norms > 0, captured / np.where(norms > 0, norms, 1.0), 0.0)
+
     # -- a wall across the end of the track ----------------------------------------------
     def axial_profile(self, g, aoa_rad, distances_m):
         """The energy of group g's CSI that comes from a wall across the robot's axis d metres
@@ -903,23 +920,39 @@ def _moved_wall(base, pivot, offset, rotation):
 
 
 def _quadratic_search(f, max_x, max_y, step_x, step_y, final_x, final_y):
-    """Maximise f(x, y) over |x| <= max_x, |y| <= max_y from (0, 0): evaluate the 3x3
-    stencil around the best point, jump to the maximum of the quadratic through it when that
-    is a maximum inside twice the stencil, else to the best stencil point; halve the steps
-    when the centre is best. f is smooth on these scales (a free gain per echo: no
-    wavelength-scale ripple)."""
+    """Maximise f over |x| <= max_x, |y| <= max_y from (0, 0): evaluate the 3x3 stencil
+    around the best point, jump to the maximum of the quadratic through it when that is a
+    maximum inside twice the stencil, else to the best stencil point; halve the steps when the
+    centre is best. f takes a list of points [(x, y), ...] and returns their values (the
+    stencil's new points are asked for together). f is smooth on these scales (a free gain
+    per echo: no wavelength-scale ripple)."""
     cache = {}
 
+    def key(x, y):
+        return round(x / final_x * 8), round(y / final_y * 8)
+
+    def values(points):
+        new = {}
+        for x, y in points:
+            k = key(x, y)
+            if k in cache or k in new:
+                continue
+            if abs(x) <= max_x + 1e-12 and abs(y) <= max_y + 1e-12:
+                new[k] = (x, y)
+            else:
+                cache[k] = -np.inf
+        if new:
+            for k, v in zip(new, f(list(new.values()))):
+                cache[k] = float(v)
+        return [cache[key(x, y)] for x, y in points]
+
     def value(x, y):
-        key = (round(x / final_x * 8), round(y / final_y * 8))
-        if key not in cache:
-            cache[key] = f(x, y) if abs(x) <= max_x + 1e-12 and abs(y) <= max_y + 1e-12 else -np.inf
-        return cache[key]
+        return values([(x, y)])[0]
 
     x, y = 0.0, 0.0
     for _ in range(60):
         offsets = [(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1)]
-        vals = np.array([value(x + i * step_x, y + j * step_y) for i, j in offsets])
+        vals = np.array(values([(x + i * step_x, y + j * step_y) for i, j in offsets]))
         best = int(np.argmax(vals))
         if np.all(np.isfinite(vals)):
             # z = a + b i + c j + d i² + e j² + g i j, least squares on the 9 points
