@@ -293,10 +293,8 @@ void slab_echo::add_doubles(const Eigen::Vector2d& q1,
             const Eigen::Vector2d first = image1 + t1 * w;
             if (!(t2 > 0.0 && t2 < 1.0 && t1 > 0.0 && t1 < 1.0) || !valid(k, m, first, second))
                 continue;
-            if (gamma_table < 0)
-                std::fill(g.begin(), g.end(), std::complex<double>(1.0, 0.0)); // (−1)²
-            else {
-                std::fill(g.begin(), g.end(), std::complex<double>(1.0, 0.0));
+            std::fill(g.begin(), g.end(), std::complex<double>(1.0, 0.0)); // a conductor: (−1)²
+            if (gamma_table >= 0) {
                 multiply_by(g.data(), gamma_table, std::abs(w.dot(n1)) / w.norm());
                 multiply_by(g.data(), gamma_table, std::abs(v.dot(n2)) / length_m);
             }

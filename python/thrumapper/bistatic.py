@@ -229,6 +229,15 @@ def segments_cross(p0, p1, a, b):
     return (d1 * d2 < 0) & (d3 * d4 < 0)
 
 
+def wall_ends(walls, margin_m=0.0):
+    """The end points (a (W, 2), b (W, 2)) of wall dicts (centre, direction, t0, t1), each
+    extended by margin_m: one number, or one per wall."""
+    margins = np.broadcast_to(np.asarray(margin_m, float), (len(walls),))
+    a = np.array([w["centre"] + (w["t0"] - m) * w["direction"] for w, m in zip(walls, margins)]).reshape(-1, 2)
+    b = np.array([w["centre"] + (w["t1"] + m) * w["direction"] for w, m in zip(walls, margins)]).reshape(-1, 2)
+    return a, b
+
+
 def segment_crosses(p0x, p0y, p1x, p1y, ax, ay, bx, by):
     """segments_cross for one pair of segments given as floats (the same arithmetic, without
     numpy's overhead on 2-vectors: the CSI fits ask it for every trial wall and pose)."""

@@ -129,11 +129,15 @@ class EchoModel:
         (any shape) and the model's subcarriers: shape (..., N). Interpolated in the
         simulator's table (building_sim.coefficient_table), made once per material here: the
         slab formula itself costs ~1 ms per 8x8 element pairs."""
+        return interpolate_coefficients(self._table(material)[which], cos_incidence)
+
+    def _table(self, material):
+        """building_sim.coefficient_table of a material at the model's subcarriers, made once."""
         cached = self._tables.get(id(material))
         if cached is None or cached[0] is not material:
             cached = (material, coefficient_table(material, self.freqs_hz))
             self._tables[id(material)] = cached
-        return interpolate_coefficients(cached[1][which], cos_incidence)
+        return cached[1]
 
     def _core_table_ids(self, material):
         """(Γ, T) table ids of a material in the C++ core, registered on first use; -1, -1 for
@@ -142,8 +146,7 @@ class EchoModel:
             return -1, -1
         cached = self._core_tables.get(id(material))
         if cached is None or cached[0] is not material:
-            self.coefficients(material, 1.0)  # makes the material's table (a conductor's: Γ = -1, T = 0)
-            table = self._tables[id(material)][1]
+            table = self._table(material)  # (a conductor's: Γ = -1, T = 0)
             cached = (material, self._echo_core.add_table(table[0]), self._echo_core.add_table(table[1]))
             self._core_tables[id(material)] = cached
         return cached[1], cached[2]
@@ -160,10 +163,10 @@ class EchoModel:
         """
         gamma_id = self._core_table_ids(material)[0]
         if crossed:
-            kept = [c for c in crossed if c[2] is not None]  # a crossed wall of no material: no loss
-            points = np.array([c[0] for c in kept], float).reshape(-1, 2)
-            normals = np.array([c[1] for c in kept], float).reshape(-1, 2)
-            ids = [self._core_table_ids(c[2])[1] for c in kept]
+            # a crossed wall of no material has table -1, which the core ignores: no loss
+            points = np.array([c[0] for c in crossed], float).reshape(-1, 2)
+            normals = np.array([c[1] for c in crossed], float).reshape(-1, 2)
+            ids = [self._core_table_ids(c[2])[1] for c in crossed]
             return self._echo_core.echo(face_point_m, normal, gamma_id, self.weights, points, normals, ids)
         return self._echo_core.echo(face_point_m, normal, gamma_id, self.weights, self._no_crossed,
                                     self._no_crossed, [])

@@ -34,6 +34,7 @@ from gnuradio import gr
 
 from . import bistatic
 from .survey_blocks import pose_from_pmt
+from .wall_fusion import wall_style
 
 PORT_MAP = pmt.intern("map")
 PORT_POSE = pmt.intern("pose")
@@ -462,10 +463,7 @@ def _widget_class():
             if m is not None:
                 labelled = set()
                 for cls, conf, start, end, source in m["walls"]:
-                    # as in the PNG: dash-dot found on the CSI alone, dotted inferred (not seen)
-                    style, found_by = {"end_wall": ("-.", ", found on the CSI"),
-                                       "side_wall": ("-.", ", found on the CSI"),
-                                       "inferred": (":", ", inferred")}.get(source, ("-", ""))
+                    style, found_by = wall_style(source)  # as in the PNG
                     label = None if (cls, found_by) in labelled else f"wall, {cls.replace('_', ' ')}{found_by}"
                     labelled.add((cls, found_by))
                     ax.plot([start[0], end[0]], [start[1], end[1]], style, color=COLOURS.get(cls, "tab:green"),

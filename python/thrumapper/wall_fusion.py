@@ -1165,10 +1165,7 @@ class WallFusion:
     # -- classes, crossings, ghosts --------------------------------------------------------
     def _segments(self, walls, margin_m=0.0):
         """Wall ends (a, b), each extended by margin_m: one number, or one per wall."""
-        margins = np.broadcast_to(np.asarray(margin_m, float), (len(walls),))
-        a = np.array([w["centre"] + (w["t0"] - m) * w["direction"] for w, m in zip(walls, margins)]).reshape(-1, 2)
-        b = np.array([w["centre"] + (w["t1"] + m) * w["direction"] for w, m in zip(walls, margins)]).reshape(-1, 2)
-        return a, b
+        return bistatic.wall_ends(walls, margin_m)
 
     @staticmethod
     def _legs_cross(tx, rx, points, a, b):
@@ -1225,9 +1222,8 @@ class WallFusion:
             by_group.setdefault(int(group[i]), []).append(i)
         # each wall's bounding box: a wall whose box is out of reach of a pose is out of reach
         # (the exact test below then runs on the others only; a long survey has many walls)
-        ends = np.array([[w["centre"] + w["t0"] * w["direction"], w["centre"] + w["t1"] * w["direction"]]
-                         for w in walls])
-        box_lo, box_hi = ends.min(axis=1), ends.max(axis=1)
+        ends_a, ends_b = self._segments(walls)
+        box_lo, box_hi = np.minimum(ends_a, ends_b), np.maximum(ends_a, ends_b)
         for g, members in by_group.items():
             pose = poses[g]
             outside = np.maximum(np.maximum(box_lo - pose[:2], pose[:2] - box_hi), 0.0)
@@ -1236,8 +1232,7 @@ class WallFusion:
             for k in near:
                 # only walls whose segment is within reach: a double bounce's two legs to it
                 # and back fit in the range
-                a = walls[k]["centre"] + walls[k]["t0"] * walls[k]["direction"]
-                b = walls[k]["centre"] + walls[k]["t1"] * walls[k]["direction"]
+                a, b = ends_a[k], ends_b[k]
                 t = np.clip((pose[:2] - a) @ (b - a) / max((b - a) @ (b - a), 1e-12), 0.0, 1.0)
                 if np.hypot(*(pose[:2] - (a + t * (b - a)))) > 0.5 * s.max_range_m:
                     continue
@@ -2969,10 +2964,10 @@ class WallFusion:
                     if not -self.ROOM_CLOSE_M <= gap <= self.ROOM_CLOSE_M:
                         continue
                     if beyond is None or depth < beyond[0]:
-                        beyond = (depth, h, end)
+                        beyond = (depth, h, end, gap)
                 if beyond is None:
                     continue
-                _, h, end = beyond
+                _, h, end, gap = beyond
                 try:
                     meet = bistatic.lines_meet(e["centre"], e["normal"], end, h.normal)
                 except bistatic.GeometryError:
@@ -2982,7 +2977,7 @@ class WallFusion:
                     continue
                 confidence = 0.5 * min(confidence_e, h.confidence)
                 pieces = [(corner, meet)]
-                if float((end - e["centre"]) @ toward_track) > 0.05:  # the back wall stops short
+                if gap > 0.05:  # the back wall stops short
                     pieces.append((end.copy(), meet.copy()))
                 for (a, b), normal in zip(pieces, (e["normal"], h.normal)):
                     out.append(MapWall(a.copy(), b.copy(), np.asarray(normal, float).copy(), CLASSES[HIDDEN], confidence,
@@ -3009,6 +3004,15 @@ class WallFusion:
 # ----------------------------------------------------------------------------------------
 # Pictures
 # ----------------------------------------------------------------------------------------
+def wall_style(source):
+    """How a wall found from `source` is drawn (the PNG and the live map): (matplotlib line
+    style, what its legend entry adds). Dash-dot: found on the CSI alone (end and side walls,
+    no echo JADE reported); dotted: inferred, not seen (a gap between two pieces, a room
+    closed at an end wall)."""
+    return {"end_wall": ("-.", ", found on the CSI"), "side_wall": ("-.", ", found on the CSI"),
+            "inferred": (":", ", inferred (not seen)")}.get(source, ("-", ""))
+
+
 def plot_map(fused, png_path, title=None, truth=None, dpi=120):
     """A PNG of the map (matplotlib): walls by class (line width by confidence), the fused
     detections and the measured echoes, corners, the corrected trajectory and the odometry.
@@ -3035,18 +3039,13 @@ def plot_map(fused, png_path, title=None, truth=None, dpi=120):
             ax.plot(e[:, 0], e[:, 1], ".", ms=3, color=colours[cls], alpha=0.35,
                     label=f"echoes ({cls.replace('_', ' ')})")
     labelled = set()
-    # dotted: a gap inferred between two pieces; dash-dot: found on the CSI alone (end and
-    # side walls, no echo JADE reported)
-    styles = {"inferred": ":", "end_wall": "-.", "side_wall": "-."}
     for w in fused.walls:
         xy = np.vstack((w.start_m, w.end_m))
-        found_by = {"end_wall": ", found on the CSI", "side_wall": ", found on the CSI",
-                    "inferred": ", inferred (not seen)"}.get(w.source, "")
+        style, found_by = wall_style(w.source)
         kind = (w.cls, found_by)
         label = None if kind in labelled else f"wall, {w.cls.replace('_', ' ')}" + found_by
         labelled.add(kind)
-        ax.plot(xy[:, 0], xy[:, 1], styles.get(w.source, "-"), color=colours[w.cls],
-                lw=1.0 + 2.5 * w.confidence, label=label)
+        ax.plot(xy[:, 0], xy[:, 1], style, color=colours[w.cls], lw=1.0 + 2.5 * w.confidence, label=label)
         if w.material and w.material != fused.stats.get("material"):  # the walls not like the rest
             mid = xy.mean(axis=0) + 0.15 * w.normal
             ax.annotate(w.material, mid, fontsize=7, color=colours[w.cls], ha="center", va="center")

@@ -268,8 +268,7 @@ class CsiWallRefiner:
         self.hidden = list(hidden)
         self._double_cache = {}
         # every wall's end points, for _crossed_for's test of all walls at once
-        self._ends = (np.array([w["centre"] + w["t0"] * w["direction"] for w in self.walls], float).reshape(-1, 2),
-                      np.array([w["centre"] + w["t1"] * w["direction"] for w in self.walls], float).reshape(-1, 2))
+        self._ends = bistatic.wall_ends(self.walls)
 
     def _crossed_for(self, k, among=None):
         """A function (specular point, pose) -> the line-of-sight walls the legs cross (of
@@ -694,13 +693,12 @@ class CsiWallRefiner:
 
     def _explained(self, v, basis, rows):
         """J of one echo v against rows (frames, M*N) already projected away from basis."""
-        v = self._project_out(v, basis)
-        norm = np.vdot(v, v).real
-        return float(np.sum(np.abs(rows @ v.conj()) ** 2) / norm) if norm > 0 else 0.0
+        return float(self._explained_many(v[None, :], basis, rows)[0])
 
     @staticmethod
     def _explained_many(echoes, basis, rows):
-        """_explained of each row of echoes (T, M*N) at once: (T,)."""
+        """J of each row of echoes (T, M*N) at once: (T,), the data energy each captures of
+        rows (frames, M*N) already projected away from basis, with a free gain per frame."""
         if basis is not None:
             echoes = echoes - (echoes @ basis.conj()) @ basis.T
         norms = np.sum(np.abs(echoes) ** 2, axis=1)
