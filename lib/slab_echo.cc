@@ -378,5 +378,153 @@ slab_echo::table_type slab_echo::corner_echo(const Eigen::Vector2d& corner_m,
     return out;
 }
 
+namespace {
+// bistatic.segment_crosses: whether segment p0 → p1 properly crosses segment a → b
+bool segment_crosses(double p0x, double p0y, double p1x, double p1y, double ax, double ay, double bx, double by)
+{
+    const double d1 = (bx - ax) * (p0y - ay) - (by - ay) * (p0x - ax);
+    const double d2 = (bx - ax) * (p1y - ay) - (by - ay) * (p1x - ax);
+    if (!(d1 * d2 < 0.0))
+        return false;
+    const double d3 = (p1x - p0x) * (ay - p0y) - (p1y - p0y) * (ax - p0x);
+    const double d4 = (p1x - p0x) * (by - p0y) - (p1y - p0y) * (bx - p0x);
+    return d3 * d4 < 0.0;
+}
+} // namespace
+
+Eigen::VectorXd slab_echo::trial_energies(const Eigen::Vector3d& pose,
+                                          const Eigen::Vector2d& tx_centre_m,
+                                          const Eigen::Vector2d& rx_centre_m,
+                                          const Eigen::Vector2d& wall_centre_m,
+                                          const Eigen::Vector2d& wall_normal,
+                                          double t_min_m,
+                                          double t_max_m,
+                                          const Eigen::Vector2d& pivot_m,
+                                          const Eigen::MatrixXd& trials,
+                                          int gamma_table,
+                                          const Eigen::VectorXcd& tx_weights,
+                                          const Eigen::MatrixXd& blocker_ends_m,
+                                          const Eigen::MatrixXd& blocker_points_m,
+                                          const Eigen::MatrixXd& blocker_normals,
+                                          int blocker_table,
+                                          const Eigen::VectorXcd& system_response,
+                                          const cmatrix_ref& basis,
+                                          const cmatrix_ref& rows) const
+{
+    const int M = d_rx.rows(), N = static_cast<int>(d_k.size());
+    const Eigen::Index MN = static_cast<Eigen::Index>(M) * N;
+    check_weights(tx_weights);
+    check_table(gamma_table, "gamma_table");
+    check_table(blocker_table, "blocker_table");
+    if (trials.rows() > 0 && trials.cols() != 2)
+        throw std::invalid_argument("slab_echo: trials must be (T, 2): offset_m, rotation_rad; got (" +
+                                    std::to_string(trials.rows()) + ", " + std::to_string(trials.cols()) + ")");
+    const Eigen::Index C = blocker_ends_m.rows();
+    if ((C > 0 && blocker_ends_m.cols() != 4) || blocker_points_m.rows() != C || blocker_normals.rows() != C ||
+        (C > 0 && (blocker_points_m.cols() != 2 || blocker_normals.cols() != 2)))
+        throw std::invalid_argument("slab_echo: blockers: ends must be (C, 4), points and normals (C, 2); got " +
+                                    std::to_string(C) + " ends, " + std::to_string(blocker_points_m.rows()) +
+                                    " points, " + std::to_string(blocker_normals.rows()) + " normals");
+    if (system_response.size() != N)
+        throw std::invalid_argument("slab_echo: system_response must have " + std::to_string(N) +
+                                    " subcarriers, got " + std::to_string(system_response.size()));
+    if (rows.cols() != MN || (basis.cols() > 0 && basis.rows() != MN))
+        throw std::invalid_argument("slab_echo: rows must be (F, " + std::to_string(MN) + ") and basis (" +
+                                    std::to_string(MN) + ", B); got rows (" + std::to_string(rows.rows()) + ", " +
+                                    std::to_string(rows.cols()) + "), basis (" + std::to_string(basis.rows()) +
+                                    ", " + std::to_string(basis.cols()) + ")");
+    if (!pose.allFinite() || !wall_centre_m.allFinite() || !wall_normal.allFinite() || !pivot_m.allFinite() ||
+        !trials.allFinite())
+        throw std::invalid_argument("slab_echo: trial_energies needs a finite pose, wall, pivot and trials");
+
+    // bistatic.world_to_robot, robot_to_world and rotate(v, -heading), on the same floats
+    const double x = pose(0), y = pose(1);
+    const double c = std::cos(pose(2)), s = std::sin(pose(2));
+    const double c_back = std::cos(-pose(2)), s_back = std::sin(-pose(2));
+    auto to_robot = [&](double px, double py) {
+        px -= x;
+        py -= y;
+        return Eigen::Vector2d(c * px + s * py, -s * px + c * py);
+    };
+    auto to_world = [&](double px, double py) { return Eigen::Vector2d(x + c * px - s * py, y + s * px + c * py); };
+    auto turn_back = [&](double vx, double vy) {
+        return Eigen::Vector2d(c_back * vx - s_back * vy, s_back * vx + c_back * vy);
+    };
+    const Eigen::Vector2d tx_w = to_world(tx_centre_m(0), tx_centre_m(1));
+    const Eigen::Vector2d rx_w = to_world(rx_centre_m(0), rx_centre_m(1));
+    Eigen::MatrixXd blocker_points_r(C, 2), blocker_normals_r(C, 2);
+    for (Eigen::Index b = 0; b < C; b++) {
+        blocker_points_r.row(b) = to_robot(blocker_points_m(b, 0), blocker_points_m(b, 1)).transpose();
+        blocker_normals_r.row(b) = turn_back(blocker_normals(b, 0), blocker_normals(b, 1)).transpose();
+    }
+
+    const Eigen::Index T = trials.rows();
+    Eigen::VectorXd energies = Eigen::VectorXd::Zero(T);
+    std::vector<Eigen::Index> seen;
+    Eigen::MatrixXcd echoes(T, MN);
+    const double tx_x = tx_centre_m(0), tx_y = tx_centre_m(1), rx_x = rx_centre_m(0), rx_y = rx_centre_m(1);
+    for (Eigen::Index t = 0; t < T; t++) {
+        // wall_refinement._moved_wall
+        const double cr = std::cos(trials(t, 1)), sr = std::sin(trials(t, 1));
+        const double nx = cr * wall_normal(0) - sr * wall_normal(1);
+        const double ny = sr * wall_normal(0) + cr * wall_normal(1);
+        const double rel_x = wall_centre_m(0) - pivot_m(0), rel_y = wall_centre_m(1) - pivot_m(1);
+        const double centre_x = pivot_m(0) + (cr * rel_x - sr * rel_y) + trials(t, 0) * nx;
+        const double centre_y = pivot_m(1) + (sr * rel_x + cr * rel_y) + trials(t, 0) * ny;
+        // the robot on the face's side
+        if (!((x - centre_x) * nx + (y - centre_y) * ny > 0.0))
+            continue;
+        // bistatic.specular_path in the robot frame
+        const Eigen::Vector2d q = to_robot(centre_x, centre_y);
+        const Eigen::Vector2d normal_r = turn_back(nx, ny);
+        double un_x = normal_r(0), un_y = normal_r(1);
+        const double length = std::sqrt(un_x * un_x + un_y * un_y);
+        if (length != 0.0) {
+            un_x /= length;
+            un_y /= length;
+        }
+        if (!((tx_x - q(0)) * un_x + (tx_y - q(1)) * un_y > 0.0 && (rx_x - q(0)) * un_x + (rx_y - q(1)) * un_y > 0.0))
+            continue;
+        const double d = 2.0 * ((tx_x - q(0)) * un_x + (tx_y - q(1)) * un_y);
+        const double v_x = tx_x - d * un_x - rx_x, v_y = tx_y - d * un_y - rx_y;
+        const double along_v = ((q(0) - rx_x) * un_x + (q(1) - rx_y) * un_y) / (v_x * un_x + v_y * un_y);
+        const Eigen::Vector2d spec = to_world(rx_x + along_v * v_x, rx_y + along_v * v_y);
+        // within the wall's extent along (−n_y, n_x)
+        const double along = (spec(0) - centre_x) * -ny + (spec(1) - centre_y) * nx;
+        if (!(t_min_m <= along && along <= t_max_m))
+            continue;
+        std::vector<int> crossed;
+        for (Eigen::Index b = 0; b < C; b++) {
+            const double ax = blocker_ends_m(b, 0), ay = blocker_ends_m(b, 1);
+            const double bx = blocker_ends_m(b, 2), by = blocker_ends_m(b, 3);
+            if (segment_crosses(tx_w(0), tx_w(1), spec(0), spec(1), ax, ay, bx, by) ||
+                segment_crosses(spec(0), spec(1), rx_w(0), rx_w(1), ax, ay, bx, by))
+                crossed.push_back(static_cast<int>(b));
+        }
+        Eigen::MatrixXd cross_points(crossed.size(), 2), cross_normals(crossed.size(), 2);
+        std::vector<int> cross_tables(crossed.size(), blocker_table);
+        for (size_t i = 0; i < crossed.size(); i++) {
+            cross_points.row(i) = blocker_points_r.row(crossed[i]);
+            cross_normals.row(i) = blocker_normals_r.row(crossed[i]);
+        }
+        const table_type e = echo(q, normal_r, gamma_table, tx_weights, cross_points, cross_normals, cross_tables);
+        const Eigen::Index r = static_cast<Eigen::Index>(seen.size());
+        for (int m = 0; m < M; m++)
+            for (int n = 0; n < N; n++)
+                echoes(r, static_cast<Eigen::Index>(m) * N + n) = e(m, n) * system_response(n);
+        seen.push_back(t);
+    }
+    if (seen.empty())
+        return energies;
+    Eigen::MatrixXcd projected = echoes.topRows(seen.size());
+    if (basis.cols() > 0)
+        projected -= (projected * basis.conjugate()) * basis.transpose();
+    const Eigen::VectorXd norms = projected.rowwise().squaredNorm();
+    const Eigen::VectorXd captured = (projected.conjugate() * rows.transpose()).cwiseAbs2().rowwise().sum();
+    for (size_t i = 0; i < seen.size(); i++)
+        energies(seen[i]) = norms(i) > 0.0 ? captured(i) / norms(i) : 0.0;
+    return energies;
+}
+
 } // namespace thrumapper
 } // namespace gr

@@ -171,6 +171,22 @@ class EchoModel:
         return self._echo_core.echo(face_point_m, normal, gamma_id, self.weights, self._no_crossed,
                                     self._no_crossed, [])
 
+    def trial_energies(self, pose, tx_centre_m, rx_centre_m, wall, pivot_m, trials, material, crossings,
+                       blocker_material, system_response, basis, rows):
+        """The CSI fit's objective (J, (T,)) for trial placements (offset_m, rotation_rad) of
+        wall dict `wall` (world centre, normal, t0, t1 with its visibility margin already
+        added) turned about pivot_m, at world pose (x, y, heading): each trial's echo of
+        `material`, its legs through `crossings` (wall_refinement._Crossings) of
+        `blocker_material`, times system_response, projected away from basis ((M*N, B) or
+        None), scored against rows (F, M*N); 0 where the pose does not see it. The C++ core
+        does it all (slab_echo.trial_energies): the fits ask for it ~10^4 times a map."""
+        empty = np.zeros((0, 0), complex)
+        return np.asarray(self._echo_core.trial_energies(
+            pose, tx_centre_m, rx_centre_m, wall["centre"], wall["normal"], float(wall["t0"]), float(wall["t1"]),
+            pivot_m, np.asarray(trials, float).reshape(-1, 2), self._core_table_ids(material)[0], self.weights,
+            crossings.ends_m, crossings.points_m, crossings.normals, self._core_table_ids(blocker_material)[1],
+            system_response, empty if basis is None else basis, rows))
+
     def echo_csi_reference(self, face_point_m, normal, material, crossed=()):
         """echo_csi in numpy: the plain reference of the benchmark (and the model's first
         form)."""

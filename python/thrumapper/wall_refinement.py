@@ -83,6 +83,53 @@ class _Pose:
         return [self.direct] if self.leak is None else [self.direct, self.leak]
 
 
+class _Crossings:
+    """The line-of-sight walls a hidden wall's echo may cross (`candidates`, indices into
+    `walls`, in the map's order): called with (specular point, pose), those the legs TX
+    centre -> specular point -> RX centre cross. Its arrays (`ends_m`, `points_m`,
+    `normals`) go to the C++ trial evaluation (slab_echo.trial_energies), which makes the
+    same test."""
+
+    def __init__(self, walls, candidates, ends, tx_c=None, rx_c=None):
+        self.walls = walls
+        self.candidates = candidates
+        self.tx_c, self.rx_c = tx_c, rx_c
+        self.segments = [(int(j), *ends[0][j].tolist(), *ends[1][j].tolist()) for j in candidates]
+        self._arrays = None
+
+    def _made(self):
+        if self._arrays is None:
+            self._arrays = (np.array([seg[1:] for seg in self.segments], float).reshape(-1, 4),
+                            np.array([self.walls[j]["centre"] for j in self.candidates], float).reshape(-1, 2),
+                            np.array([self.walls[j]["normal"] for j in self.candidates], float).reshape(-1, 2))
+        return self._arrays
+
+    @property
+    def ends_m(self):
+        """(C, 4) the candidates' end points a_x, a_y, b_x, b_y."""
+        return self._made()[0]
+
+    @property
+    def points_m(self):
+        """(C, 2) a point of each candidate's face (its centre)."""
+        return self._made()[1]
+
+    @property
+    def normals(self):
+        """(C, 2) the candidates' normals."""
+        return self._made()[2]
+
+    def __call__(self, spec, pose):
+        if not self.segments:
+            return []
+        cross = bistatic.segment_crosses
+        tx_x, tx_y = bistatic.robot_to_world(self.tx_c, pose).tolist()
+        rx_x, rx_y = bistatic.robot_to_world(self.rx_c, pose).tolist()
+        s_x, s_y = float(spec[0]), float(spec[1])
+        return [self.walls[j] for j, ax, ay, bx, by in self.segments
+                if cross(tx_x, tx_y, s_x, s_y, ax, ay, bx, by) or cross(s_x, s_y, rx_x, rx_y, ax, ay, bx, by)]
+
+
 class CsiWallRefiner:
     """Fits a WallFusion map's walls on each pose's CSI (see the module's description).
 
@@ -101,6 +148,9 @@ class CsiWallRefiner:
     #: out: 3-6 cm of bias and 1.2 deg of turn in the corridor walls' fits, but the fusion's
     #: maps were not better with either mode on the surveys measured
     DOUBLE_BOUNCES = False
+    #: the fits' trial walls evaluated in C++ (EchoModel.trial_energies); False: the same in
+    #: Python (_echo and _explained_many), the reference benchmarks/bench_echo_model.py times
+    USE_CORE_TRIALS = True
     #: walls whose normals are within this of opposite face each other
     DOUBLE_FACING_DEG = 20.0
 
@@ -269,27 +319,35 @@ class CsiWallRefiner:
         self._double_cache = {}
         # every wall's end points, for _crossed_for's test of all walls at once
         self._ends = bistatic.wall_ends(self.walls)
+        self._crossings = {}  # _crossed_for's, by wall
+        self._map_echoes = {}  # _map_echo's, by (group, wall)
 
     def _crossed_for(self, k, among=None):
-        """A function (specular point, pose) -> the line-of-sight walls the legs cross (of
-        the walls in `among` when given), in the map's order."""
+        """A _Crossings for wall k: called with (specular point, pose), the line-of-sight
+        walls the legs cross (of the walls in `among` when given), in the map's order. Made
+        once per wall and map when `among` is not given."""
+        if among is None and k in self._crossings:
+            return self._crossings[k]
         walls, hidden = self.walls, self.hidden
         if not hidden[k]:
-            return lambda spec, pose: []
-        candidates = np.array([j for j in range(len(walls)) if j != k and not hidden[j]
-                               and (among is None or j in among)], int)
-        if candidates.size == 0:
-            return lambda spec, pose: []
-        segments = [(int(j), *self._ends[0][j].tolist(), *self._ends[1][j].tolist()) for j in candidates]
-        cross = bistatic.segment_crosses
+            made = _Crossings(walls, np.zeros(0, int), self._ends)
+        else:
+            candidates = np.array([j for j in range(len(walls)) if j != k and not hidden[j]
+                                   and (among is None or j in among)], int)
+            made = _Crossings(walls, candidates, self._ends, self.tx_c, self.rx_c)
+        if among is None:
+            self._crossings[k] = made
+        return made
 
-        def crossed(spec, pose):
-            tx_x, tx_y = bistatic.robot_to_world(self.tx_c, pose).tolist()
-            rx_x, rx_y = bistatic.robot_to_world(self.rx_c, pose).tolist()
-            s_x, s_y = float(spec[0]), float(spec[1])
-            return [walls[j] for j, ax, ay, bx, by in segments
-                    if cross(tx_x, tx_y, s_x, s_y, ax, ay, bx, by) or cross(s_x, s_y, rx_x, rx_y, ax, ay, bx, by)]
-        return crossed
+    def _map_echo(self, g, j):
+        """_echo of the map's wall j at group g (its own material, its crossings, no
+        doubles), made once per map: every fit at that pose projects it out."""
+        data = self.poses[g]
+        cached = self._map_echoes.get((g, j))
+        if cached is None or cached[0] is not data.model:  # (add() may give the group new weights)
+            cached = (data.model, self._echo(data, self.walls[j], self.world_poses[g], self._crossed_for(j)))
+            self._map_echoes[(g, j)] = cached
+        return cached[1]
 
     def _basis(self, g, exclude, unexplained_paths=True):
         """Orthonormal columns of everything modelled at group g but wall `exclude` (an index,
@@ -300,8 +358,8 @@ class CsiWallRefiner:
         data, pose = self.poses[g], self.world_poses[g]
         excluded = set(exclude) if isinstance(exclude, (set, frozenset, list, tuple)) else {exclude}
         cols, explained = [], []
-        for j, w in enumerate(self.walls):
-            e = self._echo(data, w, pose, self._crossed_for(j))
+        for j in range(len(self.walls)):
+            e = self._map_echo(g, j)
             if e is None:
                 continue
             explained.append((e[1], e[2]))
@@ -410,6 +468,20 @@ class CsiWallRefiner:
             basis = self._basis(g, k) if bases is None else bases[g]
             prepared.append((g, self._project_out(self.poses[g].rows.T, basis).T, basis))
 
+        margin = s.visibility_margin_m
+        seen_extent = dict(base, t0=base["t0"] - margin, t1=base["t1"] + margin)
+        own_material = self.material if material is None else material
+
+        def objective_core(trials):
+            # the same as objective below, all of it in C++ (EchoModel.trial_energies)
+            totals = np.zeros(len(trials))
+            for g, rows, basis in prepared:
+                data = self.poses[g]
+                totals += data.model.trial_energies(self.world_poses[g], self.tx_c, self.rx_c, seen_extent, pivot,
+                                                    trials, own_material, crossed, self.material, self._sys, basis,
+                                                    rows)
+            return totals
+
         def objective(trials):
             # J of each trial (offset, rotation), the echoes of all of them projected at once
             # per group (the search asks for a stencil of up to 9 at a time)
@@ -427,8 +499,10 @@ class CsiWallRefiner:
                     totals[seen] += self._explained_many(np.array(echoes), basis, rows)
             return totals
 
+        # doubles and a crossing test of the caller's own are modelled in Python only
+        fast = self.USE_CORE_TRIALS and not doubles and isinstance(crossed, _Crossings)
         offset, rotation = _quadratic_search(
-            objective, s.max_offset_m, math.radians(s.max_rotation_deg), step_m, math.radians(step_deg),
+            objective_core if fast else objective, s.max_offset_m, math.radians(s.max_rotation_deg), step_m, math.radians(step_deg),
             s.final_offset_step_m, math.radians(s.final_rotation_step_deg))
         return offset, rotation, _moved_wall(base, pivot, offset, rotation)
 

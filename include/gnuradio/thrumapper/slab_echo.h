@@ -99,6 +99,46 @@ public:
                            int gamma_table,
                            const Eigen::VectorXcd& tx_weights) const;
 
+    //! A complex matrix of any layout, seen without a copy (numpy's arrays from Python).
+    using cmatrix_ref = Eigen::Ref<const Eigen::MatrixXcd, 0, Eigen::Stride<Eigen::Dynamic, Eigen::Dynamic>>;
+
+    /*!
+     * The CSI fit's objective for trial placements of one wall at one pose (the core of
+     * wall_refinement.CsiWallRefiner._fit): for each trial (offset_m, rotation_rad) the wall
+     * is turned by the rotation about pivot_m and then moved offset_m along its new normal,
+     * and J is the energy of the data `rows` (F, M·N; already projected away from `basis`)
+     * that the trial's echo captures with a free gain per frame, the echo projected away from
+     * `basis` too (M·N, B orthonormal columns; B = 0: none). A trial the pose does not see
+     * scores 0: both array centres must be in front of its face, its specular point (between
+     * the array centres) within t_min_m..t_max_m along the direction (−n_y, n_x) from its
+     * centre, and the robot on its normal's side.
+     *
+     * World frame: pose (x, y, heading); the wall's centre and unit normal; pivot_m. The
+     * echo is echo()'s in the pose's robot frame, times system_response (N) per subcarrier,
+     * flattened row by row (m·N + n). Each leg from the TX centre to the specular point and
+     * from there to the RX centre that properly crosses a blocker segment (blocker_ends_m
+     * (C, 4): a_x, a_y, b_x, b_y) takes that blocker's face (blocker_points_m, blocker_normals
+     * (C, 2)) with T table blocker_table into the echo, in the blockers' order.
+     */
+    Eigen::VectorXd trial_energies(const Eigen::Vector3d& pose,
+                                   const Eigen::Vector2d& tx_centre_m,
+                                   const Eigen::Vector2d& rx_centre_m,
+                                   const Eigen::Vector2d& wall_centre_m,
+                                   const Eigen::Vector2d& wall_normal,
+                                   double t_min_m,
+                                   double t_max_m,
+                                   const Eigen::Vector2d& pivot_m,
+                                   const Eigen::MatrixXd& trials,
+                                   int gamma_table,
+                                   const Eigen::VectorXcd& tx_weights,
+                                   const Eigen::MatrixXd& blocker_ends_m,
+                                   const Eigen::MatrixXd& blocker_points_m,
+                                   const Eigen::MatrixXd& blocker_normals,
+                                   int blocker_table,
+                                   const Eigen::VectorXcd& system_response,
+                                   const cmatrix_ref& basis,
+                                   const cmatrix_ref& rows) const;
+
     int num_tx() const { return d_tx.rows(); }
     int num_rx() const { return d_rx.rows(); }
     int num_subcarriers() const { return static_cast<int>(d_k.size()); }

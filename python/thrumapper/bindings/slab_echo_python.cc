@@ -5,7 +5,7 @@
 /* BINDTOOL_GEN_AUTOMATIC(0) */
 /* BINDTOOL_USE_PYGCCXML(0) */
 /* BINDTOOL_HEADER_FILE(slab_echo.h) */
-/* BINDTOOL_HEADER_FILE_HASH(8b918919eead73aa5e60f9e456c2fcb2) */
+/* BINDTOOL_HEADER_FILE_HASH(6978cb880cfddeb0af838349f7369c03) */
 
 #include <pybind11/complex.h>
 #include <pybind11/eigen.h>
@@ -33,6 +33,8 @@ leg crosses (the core of echo_model.EchoModel.echo_csi; system delay left out, r
 
     h = core.double_echo(q1, n1, q2, n2, g, weights)  # TX -> face 1 -> face 2 -> RX
     h = core.corner_echo(corner, normal_a, normal_b, g, weights)  # a room's inside corner
+    j = core.trial_energies(pose, tx_c, rx_c, centre, normal, t0, t1, pivot, trials, g, weights,
+                            ends, points, normals, tr, system_response, basis, rows)  # fits' J
 
 gamma_table -1 is a perfect conductor (Γ = -1); a crossed wall with table -1 is ignored.
 )doc")
@@ -66,6 +68,36 @@ gamma_table -1 is a perfect conductor (Γ = -1); a crossed wall with table -1 is
              py::arg("normal_b"),
              py::arg("gamma_table"),
              py::arg("tx_weights"))
+        .def("trial_energies",
+             &slab_echo::trial_energies,
+             py::arg("pose"),
+             py::arg("tx_centre_m"),
+             py::arg("rx_centre_m"),
+             py::arg("wall_centre_m"),
+             py::arg("wall_normal"),
+             py::arg("t_min_m"),
+             py::arg("t_max_m"),
+             py::arg("pivot_m"),
+             py::arg("trials"),
+             py::arg("gamma_table"),
+             py::arg("tx_weights"),
+             py::arg("blocker_ends_m"),
+             py::arg("blocker_points_m"),
+             py::arg("blocker_normals"),
+             py::arg("blocker_table"),
+             py::arg("system_response"),
+             py::arg("basis"),
+             py::arg("rows"),
+             R"doc(
+J of trial placements (offset_m, rotation_rad) of one wall at one pose: the CSI fit's objective
+(wall_refinement.CsiWallRefiner._fit). Each trial turns the wall (world centre, unit normal)
+about pivot_m and moves it along its new normal; its echo (robot frame of pose, times
+system_response, flattened m*N + n) is projected away from basis (M*N, B; B = 0 for none) and
+scored by the energy of rows (F, M*N) it captures with a free gain per frame. 0 where the pose
+does not see the trial (extent t_min_m..t_max_m along (-n_y, n_x) from the centre). Legs that
+cross a blocker segment (C, 4) take its face (points, normals (C, 2), T table blocker_table).
+Returns (T,).
+)doc")
         .def_property_readonly("num_tx", &slab_echo::num_tx)
         .def_property_readonly("num_rx", &slab_echo::num_rx)
         .def_property_readonly("num_subcarriers", &slab_echo::num_subcarriers)
