@@ -906,13 +906,16 @@ class CsiWallRefiner:
             total += energy
             for t, tilt in enumerate(tilts):
                 normal_r = bistatic.rotate(-bistatic.rotate(u, float(tilt)), -pose[2])
+                seen, echoes = [], []
                 for i, d in enumerate(offsets[t]):
                     point_r = bistatic.world_to_robot(origin + float(d) * u, pose)
                     if (self.tx_c - point_r) @ normal_r <= 0 or (self.rx_c - point_r) @ normal_r <= 0:
                         continue  # the arrays are not in front of it
-                    echo = (data.model.echo_csi(point_r, normal_r, self.material) * self._sys).ravel()
-                    scores[t, i] += self._explained(echo, basis, residual)
-                    noise[t, i] += energy / max(dims, 1)
+                    seen.append(i)
+                    echoes.append((data.model.echo_csi(point_r, normal_r, self.material) * self._sys).ravel())
+                if seen:  # a tilt's offsets projected and scored as one matrix
+                    scores[t, seen] += self._explained_many(np.array(echoes), basis, residual)
+                    noise[t, seen] += energy / max(dims, 1)
         return scores, noise, total
 
     # -- a room's corner behind a wall ---------------------------------------------------
