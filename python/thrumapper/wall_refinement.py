@@ -502,8 +502,8 @@ class CsiWallRefiner:
         # doubles and a crossing test of the caller's own are modelled in Python only
         fast = self.USE_CORE_TRIALS and not doubles and isinstance(crossed, _Crossings)
         offset, rotation = _quadratic_search(
-            objective_core if fast else objective, s.max_offset_m, math.radians(s.max_rotation_deg), step_m, math.radians(step_deg),
-            s.final_offset_step_m, math.radians(s.final_rotation_step_deg))
+            objective_core if fast else objective, s.max_offset_m, math.radians(s.max_rotation_deg), step_m,
+            math.radians(step_deg), s.final_offset_step_m, math.radians(s.final_rotation_step_deg))
         return offset, rotation, _moved_wall(base, pivot, offset, rotation)
 
     def sees(self, g, k):

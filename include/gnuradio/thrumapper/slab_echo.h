@@ -20,24 +20,27 @@ namespace thrumapper {
  *
  * For every TX element k and RX element m the echo is built by the image method: the TX
  * element mirrored in the wall's face, the exact path length L_km to the RX element
- * (spherical wavefronts), the wall's reflection coefficient Γ at that pair's own incidence
- * angle and every subcarrier's absolute frequency, and the insertion transmission T of every
- * wall a leg crosses (TX → bounce, bounce → RX), at that leg's incidence:
+ * (spherical wavefronts), the wall's reflection coefficient Γ at that pair's own
+ * incidence angle and every subcarrier's absolute frequency, and the insertion
+ * transmission T of every wall a leg crosses (TX → bounce, bounce → RX), at that leg's
+ * incidence:
  *
- *   h[m, n] = λ_n · Σ_k w_k · Γ(θ_km, f_n) · Π T(θ_leg, f_n) · e^{−j2π f_n L_km / c} / (4π L_km)
+ *   h[m, n] = λ_n · Σ_k w_k · Γ(θ_km, f_n) · Π T(θ_leg, f_n) · e^{−j2π f_n L_km / c} /
+ * (4π L_km)
  *
  * with the system delay left out (robot frame, FORMATS.md's channel). Γ and T come from
  * coefficient tables made once per material (rows: incidence angles 0..90° on a uniform
- * grid, columns: the subcarriers; building_sim.coefficient_table), interpolated linearly in
- * the angle. The CSI fits of a map evaluate this ~10⁵ times, which is why it is C++: on
- * uniform subcarriers the phase ramp over the band is made of two sines and cosines a pair
- * (the first subcarrier's phase, the step) and products, instead of one each subcarrier.
+ * grid, columns: the subcarriers; building_sim.coefficient_table), interpolated linearly
+ * in the angle. The CSI fits of a map evaluate this ~10⁵ times, which is why it is C++:
+ * on uniform subcarriers the phase ramp over the band is made of two sines and cosines a
+ * pair (the first subcarrier's phase, the step) and products, instead of one each
+ * subcarrier.
  */
 class THRUMAPPER_API slab_echo
 {
 public:
-    using table_type =
-        Eigen::Matrix<std::complex<double>, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+    using table_type = Eigen::
+        Matrix<std::complex<double>, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 
     /*!
      * \param tx_elements_m (K, 2) TX element positions, robot frame, metres
@@ -57,13 +60,12 @@ public:
     int add_table(const table_type& table);
 
     /*!
-     * (M, N) CSI of the echo of the wall whose face passes through face_point_m with normal
-     * `normal` (any length, not zero), robot frame.
-     * \param gamma_table id of the wall's Γ table, or −1 for a perfect conductor (Γ = −1)
-     * \param tx_weights (K) the TX weights
-     * \param crossed_points_m (C, 2) a point of each crossed wall's face
-     * \param crossed_normals (C, 2) their normals
-     * \param crossed_tables (C) their T tables' ids (−1: the wall is ignored)
+     * (M, N) CSI of the echo of the wall whose face passes through face_point_m with
+     * normal `normal` (any length, not zero), robot frame. \param gamma_table id of the
+     * wall's Γ table, or −1 for a perfect conductor (Γ = −1) \param tx_weights (K) the TX
+     * weights \param crossed_points_m (C, 2) a point of each crossed wall's face \param
+     * crossed_normals (C, 2) their normals \param crossed_tables (C) their T tables' ids
+     * (−1: the wall is ignored)
      */
     table_type echo(const Eigen::Vector2d& face_point_m,
                     const Eigen::Vector2d& normal,
@@ -74,10 +76,11 @@ public:
                     const std::vector<int>& crossed_tables) const;
 
     /*!
-     * (M, N) CSI of the double bounce TX → face 1 → face 2 → RX between two infinite faces
-     * (a corridor's walls facing each other), by imaging each TX element in face 1 and then
-     * in face 2: Γ at both bounces' incidences (gamma_table −1: two conductor bounces, +1). A
-     * pair whose bounces fall behind a focus or on a face's back adds nothing.
+     * (M, N) CSI of the double bounce TX → face 1 → face 2 → RX between two infinite
+     * faces (a corridor's walls facing each other), by imaging each TX element in face 1
+     * and then in face 2: Γ at both bounces' incidences (gamma_table −1: two conductor
+     * bounces, +1). A pair whose bounces fall behind a focus or on a face's back adds
+     * nothing.
      */
     table_type double_echo(const Eigen::Vector2d& first_point_m,
                            const Eigen::Vector2d& first_normal,
@@ -87,11 +90,11 @@ public:
                            const Eigen::VectorXcd& tx_weights) const;
 
     /*!
-     * (M, N) CSI of a concave corner's double bounce, both orders (TX → face a → face b → RX
-     * and TX → b → a → RX): the faces are half-lines from corner_m, each running into the
-     * side the other faces (a room's inside corner), normals into the room. A pair whose
-     * bounce points fall off either face, or whose arrays are not in front of both faces,
-     * adds nothing.
+     * (M, N) CSI of a concave corner's double bounce, both orders (TX → face a → face b →
+     * RX and TX → b → a → RX): the faces are half-lines from corner_m, each running into
+     * the side the other faces (a room's inside corner), normals into the room. A pair
+     * whose bounce points fall off either face, or whose arrays are not in front of both
+     * faces, adds nothing.
      */
     table_type corner_echo(const Eigen::Vector2d& corner_m,
                            const Eigen::Vector2d& normal_a,
@@ -100,25 +103,27 @@ public:
                            const Eigen::VectorXcd& tx_weights) const;
 
     //! A complex matrix of any layout, seen without a copy (numpy's arrays from Python).
-    using cmatrix_ref = Eigen::Ref<const Eigen::MatrixXcd, 0, Eigen::Stride<Eigen::Dynamic, Eigen::Dynamic>>;
+    using cmatrix_ref = Eigen::
+        Ref<const Eigen::MatrixXcd, 0, Eigen::Stride<Eigen::Dynamic, Eigen::Dynamic>>;
 
     /*!
      * The CSI fit's objective for trial placements of one wall at one pose (the core of
-     * wall_refinement.CsiWallRefiner._fit): for each trial (offset_m, rotation_rad) the wall
-     * is turned by the rotation about pivot_m and then moved offset_m along its new normal,
-     * and J is the energy of the data `rows` (F, M·N; already projected away from `basis`)
-     * that the trial's echo captures with a free gain per frame, the echo projected away from
-     * `basis` too (M·N, B orthonormal columns; B = 0: none). A trial the pose does not see
-     * scores 0: both array centres must be in front of its face, its specular point (between
-     * the array centres) within t_min_m..t_max_m along the direction (−n_y, n_x) from its
-     * centre, and the robot on its normal's side.
+     * wall_refinement.CsiWallRefiner._fit): for each trial (offset_m, rotation_rad) the
+     * wall is turned by the rotation about pivot_m and then moved offset_m along its new
+     * normal, and J is the energy of the data `rows` (F, M·N; already projected away from
+     * `basis`) that the trial's echo captures with a free gain per frame, the echo
+     * projected away from `basis` too (M·N, B orthonormal columns; B = 0: none). A trial
+     * the pose does not see scores 0: both array centres must be in front of its face,
+     * its specular point (between the array centres) within t_min_m..t_max_m along the
+     * direction (−n_y, n_x) from its centre, and the robot on its normal's side.
      *
      * World frame: pose (x, y, heading); the wall's centre and unit normal; pivot_m. The
-     * echo is echo()'s in the pose's robot frame, times system_response (N) per subcarrier,
-     * flattened row by row (m·N + n). Each leg from the TX centre to the specular point and
-     * from there to the RX centre that properly crosses a blocker segment (blocker_ends_m
-     * (C, 4): a_x, a_y, b_x, b_y) takes that blocker's face (blocker_points_m, blocker_normals
-     * (C, 2)) with T table blocker_table into the echo, in the blockers' order.
+     * echo is echo()'s in the pose's robot frame, times system_response (N) per
+     * subcarrier, flattened row by row (m·N + n). Each leg from the TX centre to the
+     * specular point and from there to the RX centre that properly crosses a blocker
+     * segment (blocker_ends_m (C, 4): a_x, a_y, b_x, b_y) takes that blocker's face
+     * (blocker_points_m, blocker_normals (C, 2)) with T table blocker_table into the
+     * echo, in the blockers' order.
      */
     Eigen::VectorXd trial_energies(const Eigen::Vector3d& pose,
                                    const Eigen::Vector2d& tx_centre_m,
@@ -142,7 +147,8 @@ public:
     int num_tx() const { return d_tx.rows(); }
     int num_rx() const { return d_rx.rows(); }
     int num_subcarriers() const { return static_cast<int>(d_k.size()); }
-    //! Whether the subcarriers are evenly spaced (the fast phase ramp) or not (one sin/cos each).
+    //! Whether the subcarriers are evenly spaced (the fast phase ramp) or not (one
+    //! sin/cos each).
     bool uniform_subcarriers() const { return d_uniform; }
 
 private:
@@ -157,8 +163,8 @@ private:
                   std::complex<double>* g,
                   std::complex<double>* e,
                   std::complex<double>* row) const;
-    // The double bounces TX → (q1, n1) → (q2, n2) → RX of the pairs `valid` accepts, added to
-    // out; valid(k, m, first bounce, second bounce) sees the bounce points
+    // The double bounces TX → (q1, n1) → (q2, n2) → RX of the pairs `valid` accepts,
+    // added to out; valid(k, m, first bounce, second bounce) sees the bounce points
     template <typename Valid>
     void add_doubles(const Eigen::Vector2d& q1,
                      const Eigen::Vector2d& n1,

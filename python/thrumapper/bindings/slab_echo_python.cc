@@ -5,7 +5,7 @@
 /* BINDTOOL_GEN_AUTOMATIC(0) */
 /* BINDTOOL_USE_PYGCCXML(0) */
 /* BINDTOOL_HEADER_FILE(slab_echo.h) */
-/* BINDTOOL_HEADER_FILE_HASH(6978cb880cfddeb0af838349f7369c03) */
+/* BINDTOOL_HEADER_FILE_HASH(476b122b408347153f2227fe9455b9c2) */
 
 #include <pybind11/complex.h>
 #include <pybind11/eigen.h>
