@@ -161,14 +161,20 @@ def simulated(scene, folder, seed):
     return meta, truth
 
 
-def jade_input(meta):
+def jade_input(meta, system_delay_s=SYSTEM_DELAY_S):
     """(survey, the fusion's input per pose group: pose, paths, frame, CSI as JADE saw it with
-    the direct path cancelled, TX weights), as thrumapper-map makes them."""
+    the direct path cancelled, TX weights; the system delay used), as thrumapper-map makes
+    them, at system_delay_s (None: the survey's, measured on the direct path when it states
+    none)."""
     survey = read_survey(meta)
     work = rx_calibration.calibrated_survey(survey, rx_calibration.calibrate_survey(survey))
+    if system_delay_s is None:
+        system_delay_s = survey.system_delay_s
+    if system_delay_s is None:
+        system_delay_s = jade_pipeline.estimate_system_delay(work, jade_pipeline.group_frames_by_pose(work))
     items = [(r["pose"], r["paths"], r["frames"][0], r["csi"], r["tx_weights"])
-             for r in jade_pipeline.run_survey(work, cli_map.jade_settings(), SYSTEM_DELAY_S, keep_csi=True)]
-    return survey, items
+             for r in jade_pipeline.run_survey(work, cli_map.jade_settings(), system_delay_s, keep_csi=True)]
+    return survey, items, system_delay_s
 
 
 def csi_energy(items):
@@ -341,7 +347,7 @@ def variant_rows(name, base, root, args):
     scene = copy.deepcopy(base)
     VARIANTS[name](scene)
     meta, truth = simulated(scene, folder, args.seed)
-    survey, items = jade_input(meta)
+    survey, items, _ = jade_input(meta)
     jade_s = time.perf_counter() - started
     fits, fitted_leak_db = fit_errors(survey, items, truth, scene, args.doubles, args.leak)
     fits_s = time.perf_counter() - started - jade_s

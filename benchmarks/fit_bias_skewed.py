@@ -55,10 +55,8 @@ import yaml  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-import fit_bias  # noqa: E402  (simulated, face)
+import fit_bias  # noqa: E402  (simulated, jade_input, face)
 
-from gnuradio.thrumapper import cli_map, jade_pipeline, rx_calibration  # noqa: E402
-from gnuradio.thrumapper.survey import read_survey  # noqa: E402
 from gnuradio.thrumapper.wall_fusion import FusionSettings, RadarGeometry, WallFusion  # noqa: E402
 
 SCENE = os.path.join(HERE, "..", "examples", "scenes", "skewed_walls.yaml")
@@ -99,18 +97,6 @@ VARIANTS = {
     "first_order": _first_order,
     "brick_as_plasterboard": _brick_as_plasterboard,
 }
-
-
-def jade_input(meta):
-    """(survey, the fusion's input per pose group, system delay s), as thrumapper-map makes them."""
-    survey = read_survey(meta)
-    work = rx_calibration.calibrated_survey(survey, rx_calibration.calibrate_survey(survey))
-    delay_s = survey.system_delay_s
-    if delay_s is None:
-        delay_s = jade_pipeline.estimate_system_delay(work, jade_pipeline.group_frames_by_pose(work))
-    items = [(r["pose"], r["paths"], r["frames"][0], r["csi"], r["tx_weights"])
-             for r in jade_pipeline.run_survey(work, cli_map.jade_settings(), delay_s, keep_csi=True)]
-    return survey, items, delay_s
 
 
 def true_map(truth, scene):
@@ -223,7 +209,7 @@ def main(argv=None):
             scene = copy.deepcopy(base)
             VARIANTS[name](scene)
             meta, truth = fit_bias.simulated(scene, os.path.join(root, name), args.seed)
-            survey, items, delay_s = jade_input(meta)
+            survey, items, delay_s = fit_bias.jade_input(meta, system_delay_s=None)  # the survey's delay
             lines.append(f"| {name} | {cells(fits(survey, items, delay_s, truth, scene, args.doubles))} |")
         except Exception as error:  # one variant's failure is reported, the rest go on
             print(f"fit_bias_skewed: {name} failed: {type(error).__name__}: {error}", file=sys.stderr)

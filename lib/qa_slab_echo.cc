@@ -251,8 +251,6 @@ struct trial_scene {
     Eigen::Vector3d pose{ 2.0, 1.0, 0.3 };
     Eigen::Vector2d tx_c{ -0.35, 0.0 }, rx_c{ 0.35, 0.0 };
     Eigen::Vector2d centre{ 2.5, -1.2 }, normal{ 0.0, 1.0 };
-    Eigen::MatrixXd no_ends = Eigen::MatrixXd(0, 4), no_points = Eigen::MatrixXd(0, 2);
-    Eigen::MatrixXcd no_basis = Eigen::MatrixXcd(0, 0);
 
     trial_scene()
     {
@@ -286,33 +284,62 @@ struct trial_scene {
                 out(0, m * n + i) = h(m, i) * system(i);
         return out;
     }
+    // one trial_energies call: the wall, pivot, trials and data given, the rest defaulted
+    // (no blockers, no basis, the scene's system response), each field free to change
+    struct call {
+        const trial_scene& s;
+        Eigen::Vector2d centre, normal, pivot;
+        Eigen::MatrixXd trials;
+        Eigen::MatrixXcd rows;
+        double t_min = -3.0, t_max = 3.0;
+        int gamma = -1, blocker_table = -1;
+        Eigen::MatrixXd ends = Eigen::MatrixXd(0, 4), points = Eigen::MatrixXd(0, 2),
+                        normals = Eigen::MatrixXd(0, 2);
+        Eigen::VectorXcd system = s.system;
+        Eigen::MatrixXcd basis = Eigen::MatrixXcd(0, 0);
+
+        Eigen::VectorXd run() const
+        {
+            return s.core.trial_energies(s.pose,
+                                         s.tx_c,
+                                         s.rx_c,
+                                         centre,
+                                         normal,
+                                         t_min,
+                                         t_max,
+                                         pivot,
+                                         trials,
+                                         gamma,
+                                         s.weights,
+                                         ends,
+                                         points,
+                                         normals,
+                                         blocker_table,
+                                         system,
+                                         basis,
+                                         rows);
+        }
+    };
+    call at(const Eigen::Vector2d& c,
+            const Eigen::Vector2d& nw,
+            const Eigen::Vector2d& pivot,
+            const Eigen::MatrixXd& trials,
+            const Eigen::MatrixXcd& rows) const
+    {
+        return call{ *this, c, nw, pivot, trials, rows };
+    }
     Eigen::VectorXd energies(const Eigen::Vector2d& c,
                              const Eigen::Vector2d& nw,
                              const Eigen::Vector2d& pivot,
                              const Eigen::MatrixXd& trials,
                              const Eigen::MatrixXcd& rows,
                              double t_min = -3.0,
-                             double t_max = 3.0,
-                             int gamma = -1) const
+                             double t_max = 3.0) const
     {
-        return core.trial_energies(pose,
-                                   tx_c,
-                                   rx_c,
-                                   c,
-                                   nw,
-                                   t_min,
-                                   t_max,
-                                   pivot,
-                                   trials,
-                                   gamma,
-                                   weights,
-                                   no_ends,
-                                   no_points,
-                                   no_points,
-                                   -1,
-                                   system,
-                                   no_basis,
-                                   rows);
+        call one = at(c, nw, pivot, trials, rows);
+        one.t_min = t_min;
+        one.t_max = t_max;
+        return one.run();
     }
 };
 } // namespace
@@ -397,29 +424,15 @@ BOOST_AUTO_TEST_CASE(slab_echo_trial_energies_through_a_blocker_and_against_a_ba
     const double energy = rows.squaredNorm();
     Eigen::MatrixXd trials(1, 2);
     trials << 0.0, 0.0;
-    Eigen::MatrixXd ends(1, 4), points(1, 2), normals(1, 2);
-    points.row(0) = blocker_centre.transpose();
-    normals.row(0) = s.normal.transpose();
+    auto through = s.at(hidden_centre, s.normal, hidden_centre, trials, rows);
+    through.t_min = -5.0;
+    through.t_max = 5.0;
+    through.blocker_table = t_id;
+    through.points = blocker_centre.transpose();
+    through.normals = s.normal.transpose();
     auto with = [&](double ax, double bx) {
-        ends.row(0) << ax, -1.2, bx, -1.2;
-        return s.core.trial_energies(s.pose,
-                                     s.tx_c,
-                                     s.rx_c,
-                                     hidden_centre,
-                                     s.normal,
-                                     -5.0,
-                                     5.0,
-                                     hidden_centre,
-                                     trials,
-                                     -1,
-                                     s.weights,
-                                     ends,
-                                     points,
-                                     normals,
-                                     t_id,
-                                     s.system,
-                                     s.no_basis,
-                                     rows)(0);
+        through.ends = Eigen::RowVector4d(ax, -1.2, bx, -1.2);
+        return through.run()(0);
     };
     const double crossed = with(-3.0, 7.0), beside = with(8.0, 12.0);
     const double free =
@@ -434,25 +447,10 @@ BOOST_AUTO_TEST_CASE(slab_echo_trial_energies_through_a_blocker_and_against_a_ba
     basis /= basis.norm();
     const Eigen::MatrixXcd projected_rows =
         (rows.transpose() - basis * (basis.adjoint() * rows.transpose())).transpose();
-    ends.row(0) << -3.0, -1.2, 7.0, -1.2;
-    const double against = s.core.trial_energies(s.pose,
-                                                 s.tx_c,
-                                                 s.rx_c,
-                                                 hidden_centre,
-                                                 s.normal,
-                                                 -5.0,
-                                                 5.0,
-                                                 hidden_centre,
-                                                 trials,
-                                                 -1,
-                                                 s.weights,
-                                                 ends,
-                                                 points,
-                                                 normals,
-                                                 t_id,
-                                                 s.system,
-                                                 basis,
-                                                 projected_rows)(0);
+    through.ends = Eigen::RowVector4d(-3.0, -1.2, 7.0, -1.2);
+    through.basis = basis;
+    through.rows = projected_rows;
+    const double against = through.run()(0);
     BOOST_CHECK_CLOSE(against, projected_rows.squaredNorm(), 1e-8);
     BOOST_CHECK_LT(projected_rows.squaredNorm(), energy);
 }
@@ -471,61 +469,15 @@ BOOST_AUTO_TEST_CASE(slab_echo_trial_energies_bad_input)
     BOOST_CHECK_THROW(
         s.energies(Eigen::Vector2d(NAN, 0.0), s.normal, s.centre, trials, rows),
         std::invalid_argument);
-    BOOST_CHECK_THROW(s.core.trial_energies(s.pose,
-                                            s.tx_c,
-                                            s.rx_c,
-                                            s.centre,
-                                            s.normal,
-                                            -3.0,
-                                            3.0,
-                                            s.centre,
-                                            trials,
-                                            -1,
-                                            s.weights,
-                                            Eigen::MatrixXd(1, 3),
-                                            Eigen::MatrixXd(1, 2),
-                                            Eigen::MatrixXd(1, 2),
-                                            -1,
-                                            s.system,
-                                            s.no_basis,
-                                            rows),
-                      std::invalid_argument);
-    BOOST_CHECK_THROW(s.core.trial_energies(s.pose,
-                                            s.tx_c,
-                                            s.rx_c,
-                                            s.centre,
-                                            s.normal,
-                                            -3.0,
-                                            3.0,
-                                            s.centre,
-                                            trials,
-                                            -1,
-                                            s.weights,
-                                            s.no_ends,
-                                            s.no_points,
-                                            s.no_points,
-                                            -1,
-                                            s.system.head(5),
-                                            s.no_basis,
-                                            rows),
-                      std::invalid_argument);
-    BOOST_CHECK_THROW(s.core.trial_energies(s.pose,
-                                            s.tx_c,
-                                            s.rx_c,
-                                            s.centre,
-                                            s.normal,
-                                            -3.0,
-                                            3.0,
-                                            s.centre,
-                                            trials,
-                                            7,
-                                            s.weights,
-                                            s.no_ends,
-                                            s.no_points,
-                                            s.no_points,
-                                            -1,
-                                            s.system,
-                                            s.no_basis,
-                                            rows),
-                      std::invalid_argument);
+    auto bad_ends = s.at(s.centre, s.normal, s.centre, trials, rows);
+    bad_ends.ends = Eigen::MatrixXd(1, 3);
+    bad_ends.points = Eigen::MatrixXd(1, 2);
+    bad_ends.normals = Eigen::MatrixXd(1, 2);
+    BOOST_CHECK_THROW(bad_ends.run(), std::invalid_argument);
+    auto short_system = s.at(s.centre, s.normal, s.centre, trials, rows);
+    short_system.system = s.system.head(5);
+    BOOST_CHECK_THROW(short_system.run(), std::invalid_argument);
+    auto unknown_table = s.at(s.centre, s.normal, s.centre, trials, rows);
+    unknown_table.gamma = 7;
+    BOOST_CHECK_THROW(unknown_table.run(), std::invalid_argument);
 }

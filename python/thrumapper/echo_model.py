@@ -123,6 +123,7 @@ class EchoModel:
         self._echo_core = _core.slab_echo(self.tx_m, self.rx_m, self.carrier_hz, [float(f) for f in self.offsets_hz])
         self._core_tables = {}
         self._no_crossed = np.zeros((0, 2))
+        self._no_basis = np.zeros((0, 0), complex)
 
     def coefficients(self, material, cos_incidence, which=0):
         """Γ (which=0) or the insertion T (which=1) of a material at these incidence cosines
@@ -180,12 +181,11 @@ class EchoModel:
         `blocker_material`, times system_response, projected away from basis ((M*N, B) or
         None), scored against rows (F, M*N); 0 where the pose does not see it. The C++ core
         does it all (slab_echo.trial_energies): the fits ask for it ~10^4 times a map."""
-        empty = np.zeros((0, 0), complex)
         return np.asarray(self._echo_core.trial_energies(
             pose, tx_centre_m, rx_centre_m, wall["centre"], wall["normal"], float(wall["t0"]), float(wall["t1"]),
             pivot_m, np.asarray(trials, float).reshape(-1, 2), self._core_table_ids(material)[0], self.weights,
             crossings.ends_m, crossings.points_m, crossings.normals, self._core_table_ids(blocker_material)[1],
-            system_response, empty if basis is None else basis, rows))
+            system_response, self._no_basis if basis is None else basis, rows))
 
     def echo_csi_reference(self, face_point_m, normal, material, crossed=()):
         """echo_csi in numpy: the plain reference of the benchmark (and the model's first

@@ -397,7 +397,7 @@ class CsiWallRefiner:
         cols = [basis]
         for j, w in enumerate(self.walls):
             crossed = self._crossed_for(j)
-            base = self._echo(data, w, pose, crossed)
+            base = self._map_echo(g, j)
             if base is None:
                 continue
             try:
@@ -507,8 +507,7 @@ class CsiWallRefiner:
         return offset, rotation, _moved_wall(base, pivot, offset, rotation)
 
     def sees(self, g, k):
-        return g in self.poses and self._echo(self.poses[g], self.walls[k], self.world_poses[g],
-                                              self._crossed_for(k)) is not None
+        return g in self.poses and self._map_echo(g, k) is not None
 
     def fit_echo(self, g, k):
         """Wall k fitted on group g's CSI alone (its line in that pose's view, rotated about
@@ -537,7 +536,7 @@ class CsiWallRefiner:
         and their transmission is in both)."""
         data, pose, wall = self.poses[g], self.world_poses[g], self.walls[k]
         crossed = self._crossed_for(k)
-        e = self._echo(data, wall, pose, crossed)
+        e = self._map_echo(g, k)
         if e is None:
             return None
         basis = self._basis(g, k)
@@ -684,7 +683,7 @@ class CsiWallRefiner:
         cols = data.cancelled()
         echoes = {}
         for k in candidates:
-            e = self._echo(data, self.walls[k], pose, self._crossed_for(k))
+            e = self._map_echo(g, k)
             if e is not None:
                 echoes[k] = e[0]
         confirmed = {k for k in candidates if k not in echoes}  # not judged: nothing against them
@@ -711,12 +710,12 @@ class CsiWallRefiner:
     def twin_scores(self, g, a, b):
         """(J_a, J_b): how much of group g's CSI walls a and b each explain alone, everything
         else modelled there (but neither of them) projected out; 0 for one g does not see."""
-        data, pose = self.poses[g], self.world_poses[g]
+        data = self.poses[g]
         basis = self._basis(g, {a, b})
         rows = self._project_out(data.rows.T, basis).T
         out = []
         for k in (a, b):
-            e = self._echo(data, self.walls[k], pose, self._crossed_for(k))
+            e = self._map_echo(g, k)
             out.append(0.0 if e is None else self._explained(e[0], basis, rows))
         return out
 
