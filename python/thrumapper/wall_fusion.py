@@ -620,6 +620,12 @@ class WallFusion:
     SCALE_PLAUSIBLE_SIGMAS = 3.0
     #: point landmarks' noise with CSI-fitted walls, in units of 2 * point_sigma_m
     CORNER_SIGMA_FACTOR = 3.0
+    #: the echoes' lean estimated with the poses: the double bounces between two facing walls
+    #: turn both walls' fitted normals by one angle in mirror image (0.8 deg on the office's
+    #: true map), which, with unequal echo counts on the two sides, was taken for heading and
+    #: turned whole maps (docs/mapping.md, "The echoes' lean"); its prior, degrees
+    ORIENTATION_LEAN = True
+    ORIENTATION_LEAN_SIGMA_DEG = 5.0
     MERGE_DELAY_S = 0.3e-9
     #: the CSI fit also takes an echo of no wall this near a mapped wall's line and this near
     #: its orientation (_unassigned_near_walls)
@@ -2438,7 +2444,7 @@ class WallFusion:
                              np.array([[math.atan2(walls[k]["normal"][1], walls[k]["normal"][0]),
                                         walls[k]["centre"] @ walls[k]["normal"]] for k in line_rep]).reshape(-1),
                              np.array([c for c, _ in landmarks]).reshape(-1), np.array(ax_lines).reshape(-1),
-                             np.zeros(n_bias), [1.0, 0.0]])
+                             np.zeros(n_bias), [0.0], [1.0, 0.0]])
         n_fixed = n_pose + n_wall + n_corner + n_axial  # the knots follow
         steps = [_relative(odometry[g - 1], odometry[g]) for g in range(1, P)]
         sig_xy = np.array([max(s.odometry_scale_sigma * math.hypot(st[0], st[1]), s.odometry_position_sigma_m) for st in steps])
@@ -2460,13 +2466,15 @@ class WallFusion:
         obs_c_arr = np.array([i for i, _ in obs_c], int)
         obs_c_lm = np.array([j for _, j in obs_c], int)
         slot_of = np.array([wall_slot[labels[i]] for i in obs_w], int) if obs_w else np.zeros(0, int)
+        lean_side = normals_r[obs_w_arr, 1] if (obs_w and self.ORIENTATION_LEAN) else np.zeros(len(obs_w))
+        lean_prior = math.radians(self.ORIENTATION_LEAN_SIGMA_DEG)
 
         def unpack(x):
             ps = np.vstack((first, x[:n_pose].reshape(-1, 3)))
             wl = x[n_pose:n_pose + n_wall].reshape(-1, 2)
             cr = x[n_pose + n_wall:n_pose + n_wall + n_corner].reshape(-1, 2)
             ax = x[n_pose + n_wall + n_corner:n_fixed]
-            return ps, wl, cr, ax, x[n_fixed:n_fixed + n_bias], x[-2], x[-1]
+            return ps, wl, cr, ax, x[n_fixed:n_fixed + n_bias], x[-3], x[-2], x[-1]
 
         steps_arr = np.array(steps).reshape(-1, 3)
         step_len = np.hypot(steps_arr[:, 0], steps_arr[:, 1])
@@ -2475,7 +2483,7 @@ class WallFusion:
         prior = [sigma_scale, sigma_drift]
 
         def residuals(x):
-            ps, wl, cr, ax, bias, scale, drift = unpack(x)
+            ps, wl, cr, ax, bias, lean, scale, drift = unpack(x)
             a, b = ps[:-1], ps[1:]
             c, s_ = np.cos(a[:, 2]), np.sin(a[:, 2])
             d = b[:, :2] - a[:, :2]
@@ -2484,7 +2492,7 @@ class WallFusion:
                                    (rel[:, 1] - scale * steps_arr[:, 1]) / sig_xy,
                                    _wrap(b[:, 2] - a[:, 2] - steps_arr[:, 2] + drift * step_len) / sig_h))
             out = odo.reshape(-1).tolist()
-            out.extend([(scale - 1.0) / prior[0], drift / prior[1]])
+            out.extend([(scale - 1.0) / prior[0], drift / prior[1], lean / lean_prior])
             if obs_w:
                 pw, nw = self._to_world(points_r[obs_w_arr], normals_r[obs_w_arr], ps, group[obs_w_arr])
                 phi = wl[slot_of, 0]
@@ -2493,8 +2501,9 @@ class WallFusion:
                 out.extend(((np.sum(pw * n_, axis=1) - wl[slot_of, 1] - along_bias) / sigma_p).tolist())
                 # the echoes' orientations tie the map's rotation to the poses' headings (the
                 # points alone leave it free along parallel walls); loosely, as the
-                # estimator's angle errors bias them
-                out.extend((_wrap(np.arctan2(nw[:, 1], nw[:, 0]) - phi) / sigma_o).tolist())
+                # estimator's angle errors bias them. Less the lean: a turn by the normal's
+                # y in the robot frame, one way for walls on the left, the other on the right
+                out.extend((_wrap(np.arctan2(nw[:, 1], nw[:, 0]) - phi - lean * lean_side) / sigma_o).tolist())
             if len(obs_c):
                 pw, _ = self._to_world(points_r[obs_c_arr], normals_r[obs_c_arr], ps, group[obs_c_arr])
                 out.extend(((pw - cr[obs_c_lm]) / sigma_c).reshape(-1).tolist())
@@ -2507,7 +2516,7 @@ class WallFusion:
                 out.extend(((b[1:] - rho * b[:-1]) / bias_step_sigma).tolist())
             return np.array(out) * row_weights[0]
 
-        m = 3 * (P - 1) + 2 + 2 * len(obs_w) + 2 * len(obs_c) + ax_g.size + n_bias
+        m = 3 * (P - 1) + 3 + 2 * len(obs_w) + 2 * len(obs_c) + ax_g.size + n_bias
         # the Jacobian's pattern, block by block as index arrays (a lil_matrix filled entry by
         # entry took most of the adjustment's time on a long survey)
         rows_at, cols_at = [], []
@@ -2528,13 +2537,15 @@ class WallFusion:
             pose_entries(rows, g)
             entries(rows, [[x0.size - 2, x0.size - 1]])
         row = 3 * (P - 1)
-        entries([row, row + 1], [[x0.size - 2], [x0.size - 1]])
-        row += 2
+        entries([row, row + 1, row + 2], [[x0.size - 2], [x0.size - 1], [x0.size - 3]])
+        row += 3
         g_w = group[obs_w_arr]
         for orientations in (False, True):  # distances, then orientations
             rows = row + np.arange(len(obs_w))
             pose_entries(rows, g_w)
             entries(rows, n_pose + 2 * slot_of[:, None] + np.arange(2)[None, :])
+            if orientations:
+                entries(rows, [[x0.size - 3]])
             if n_bias and not orientations:
                 entries(rows, n_fixed + knot_i)
             row += len(obs_w)
@@ -2589,7 +2600,7 @@ class WallFusion:
         # SYSTEMATIC_SIGNIFICANCE of them is held at none, so that a few biased echoes cannot
         # bend a short, well-measured trajectory
         sigma_fit = _last_standard_errors(solution.jac, 2)
-        _, _, _, _, _, scale, drift = unpack(x)
+        _, _, _, _, _, lean, scale, drift = unpack(x)
         z = np.abs(np.array([scale - 1.0, drift])) / np.maximum(sigma_fit, 1e-12)
         held = bool(np.all(z < self.SYSTEMATIC_SIGNIFICANCE))
         # a scale further from 1 than the odometry can be off is not a measurement but echoes
@@ -2605,13 +2616,14 @@ class WallFusion:
         if held or implausible:
             prior[:] = [1e-6 * prior[0], 1e-6 * prior[1] if held else prior[1]]
             x, solution = solve(x0)
-        ps, _, _, _, _, scale, drift = unpack(x)
+        ps, _, _, _, _, lean, scale, drift = unpack(x)
         ps[:, 2] = _wrap(ps[:, 2])
         self._odometry_fit = {"odometry_scale": float(scale), "odometry_drift_deg_per_m": math.degrees(drift),
                               "odometry_scale_sigma": float(sigma_fit[0]),
                               "odometry_drift_sigma_deg_per_m": math.degrees(float(sigma_fit[1])),
                               "odometry_systematic_held": held, "odometry_scale_implausible": implausible,
-                              "adjustment_optimality": float(solution.optimality)}
+                              "adjustment_optimality": float(solution.optimality),
+                              "orientation_lean_deg": math.degrees(float(lean))}
         return ps
 
     def _collinear_groups(self, walls):
