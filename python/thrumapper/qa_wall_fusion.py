@@ -201,6 +201,50 @@ class qa_wall_fusion(gr_unittest.TestCase):
             self.assertLess(rms, rms_clean + 0.005)
         self.assertGreater(rms_taken, rms_clean + 0.03)
 
+    def test_end_wall_at_an_axial_landmark(self):
+        """A corridor (walls at y = ±1) driven from x = 0 to 10, with an axial landmark behind
+        the start ranged 3.0 m beyond the first pose. The end-wall search then scores only
+        hypotheses within 0.5 m of the landmark (a stand-in refiner gives the scores): a peak
+        inside the window puts the wall at the peak; scores rising to the window's edge
+        (flat near the wall, as on the office) put it at the landmark's range, or nowhere
+        with END_WALL_AT_LANDMARK off; scores under the significance put it nowhere."""
+        poses = straight_poses(0.0, 10.0)
+
+        def wall(y):
+            return {"centre": np.array([5.0, y]), "normal": np.array([0.0, -np.sign(y)]),
+                    "direction": np.array([1.0, 0.0]), "t0": -5.0, "t1": 5.0}
+
+        state = {"walls": [wall(-1.0), wall(1.0)]}
+
+        class Scores:
+            def __init__(self, shape, level):
+                self.shape, self.level = shape, level
+
+            def end_wall_scores(self, origin, u, distances, groups, side_walls):
+                if u[0] > 0:  # the far end: nothing there
+                    return np.zeros(distances.size), np.ones(distances.size)
+                peak = {"edge": distances[-1], "inside": 3.2}[self.shape]
+                return self.level * (2.0 - np.abs(distances - peak)), np.ones(distances.size)
+
+        def end_walls(shape, level=20.0, at_landmark=True):
+            fusion = WallFusion(RADAR, exact_settings())
+            fusion.END_WALL_AT_LANDMARK = at_landmark
+            fusion.refiner = Scores(shape, level)
+            fusion._refiner_map = lambda *args: None
+            landmark_m = 3.0  # from the robot's centre at the first pose, backwards
+            axial = [{"sign": -1.0, "ranges": [(g, landmark_m + poses[g, 0]) for g in range(0, 20, 2)]}]
+            return fusion._end_walls(state, poses, [LOS, LOS], axial)
+
+        (inside,) = end_walls("inside")
+        (edge,) = end_walls("edge")
+        robot_x = float(bistatic.robot_to_world(WallFusion(RADAR, exact_settings()).robot_c, poses[0])[0])
+        self.assertAlmostEqual(float(inside["centre"][0]), robot_x - 3.2, delta=0.01)
+        self.assertAlmostEqual(float(edge["centre"][0]), robot_x - 3.0, delta=1e-9)
+        for found in (inside, edge):
+            self.assertAlmostEqual(found["t1"] - found["t0"], 2.0, delta=1e-6)  # from side wall to side wall
+        self.assertEqual(end_walls("edge", at_landmark=False), [])
+        self.assertEqual(end_walls("edge", level=2.0), [])
+
     def test_scale_beyond_the_odometry_spec_is_held(self):
         """The drifting corridor above with odometry 8 % long: the end walls and door frames
         measure the scale (1/1.08 = 0.926), but with the odometry stated good to 1 %

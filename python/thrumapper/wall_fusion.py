@@ -655,6 +655,9 @@ class WallFusion:
     END_WALL_RISE = 1.2
     #: ...and, beyond an axial landmark's end of the track, within this of the landmark
     AXIAL_END_WINDOW_M = 0.5
+    #: where the scores near a landmark peak at an edge of that window, the end wall is drawn
+    #: at the landmark's range instead of not at all
+    END_WALL_AT_LANDMARK = True
     #: rooms closed at end walls (_rooms_closed_at_end_walls): a hidden wall behind a side
     #: wall (within ROOM_PARALLEL_DEG of it, at most ROOM_DEPTH_M behind) whose end lies
     #: within ROOM_CLOSE_M of an end wall's line meets it there
@@ -1828,12 +1831,22 @@ class WallFusion:
             side_walls = [state["walls"][k] for k in sides]
             scores, noise = self.refiner.end_wall_scores(origin, u, distances, groups, side_walls)
             best = int(np.argmax(scores))
-            # (near a landmark the wall is known to stand: within a resolution cell of it the
-            # hypotheses differ too little for the rise test, which is for the wide search)
-            if not (0 < best < distances.size - 1 and scores[best] >= self.END_WALL_SIGNIFICANCE * noise[best] and
-                    (near_landmark or scores[best] >= self.END_WALL_RISE * max(scores[0], scores[-1]))):
+            interior = 0 < best < distances.size - 1
+            significant = scores[best] >= self.END_WALL_SIGNIFICANCE * noise[best]
+            if near_landmark and significant and not interior and self.END_WALL_AT_LANDMARK:
+                # the exact model's scores rise to an edge of the window (they are flat
+                # within a resolution cell of the wall, 15-20 times the noise across it on
+                # the office): the wall stands, as the landmark says, at the landmark's range
+                # (a beamformed peak, 0.1-0.2 m short of a plasterboard face)
+                d = landmark
+            elif not (interior and significant and
+                      (near_landmark or scores[best] >= self.END_WALL_RISE * max(scores[0], scores[-1]))):
+                # (near a landmark the wall is known to stand: within a resolution cell of it
+                # the hypotheses differ too little for the rise test, which is for the wide
+                # search)
                 continue
-            d = distances[best] + _peak_offset(*scores[best - 1:best + 2]) * self.END_WALL_STEP_M
+            else:
+                d = distances[best] + _peak_offset(*scores[best - 1:best + 2]) * self.END_WALL_STEP_M
             point = origin + d * u
             corners = [(bistatic.lines_meet(state["walls"][k]["centre"], state["walls"][k]["normal"], point, u), k)
                        for k in sides]
