@@ -24,7 +24,9 @@ the chain (docs/mapping.md):
      GNU Radio block wall_fusion does when JADE Estimator does not attach the CSI); a wall
      across the corridor behind the start, ranged on every pose's CSI, holds the distance
      travelled (the odometry's scale) where there is one (stats: axial_landmarks,
-     odometry_scale);
+     odometry_scale), and the lean of the fitted walls' orientations that the corridor's
+     double bounces give is estimated with the poses (--no-orientation-lean; stats:
+     orientation_lean_deg);
   5. walls JADE does not report, found on the CSI alone: end walls across the track past its
      ends, and side walls across the track from a line-of-sight wall where an echo of the
      same delay hid them (--no-side-walls; stats: end_walls, side_walls; GeoJSON "source").
@@ -71,6 +73,12 @@ def build_parser():
                         "reports none (a corridor driven down its middle: both walls echo with the same delay and "
                         "JADE often reports one; such walls have \"source\": \"side_wall\" in the GeoJSON; "
                         "docs/mapping.md, \"Side walls\")")
+    p.add_argument("--no-orientation-lean", action="store_true",
+                   help="take the echoes' orientations as they are fitted in the pose adjustment; by default one "
+                        "angle by which the walls on the left and on the right lean in mirror image (the "
+                        "corridor's double bounces turn their CSI fits so, 0.4-2.2 deg on the office floors) is "
+                        "estimated with the poses instead of being taken for heading (stats: "
+                        "orientation_lean_deg; docs/mapping.md, \"The echoes' lean\")")
     p.add_argument("--no-material-labels", action="store_true",
                    help="do not label the walls' materials; by default, with the CSI fits and a survey without "
                         "thrumapper:wall_model, each wall seen from 3 poses or more is labelled plasterboard, brick "
@@ -185,6 +193,7 @@ def main(argv=None):
                                          max_range_m=args.max_range_m, min_wall_poses=args.min_wall_poses,
                                          estimate_materials=not args.no_material_labels,
                                          side_walls=not args.no_side_walls,
+                                         orientation_lean=not args.no_orientation_lean,
                                          correct_materials=not args.no_material_corrections)
         fusion_settings.check()
         settings = jade_settings(args.paths, args.stages, args.max_delay_s, args.angles, args.delays)

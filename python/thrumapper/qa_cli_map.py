@@ -114,6 +114,21 @@ class qa_cli_map(gr_unittest.TestCase):
         self.assertEqual(stats["poses"], 9)
         self.assertIn("jade_s", stats["timings"])
 
+    def test_orientation_lean_flag(self):
+        """--no-orientation-lean leaves the echoes' lean out of the pose adjustment: the stats
+        report it as exactly 0, where by default it is estimated (a value of its own, here
+        near 0: one wall, no facing pair to lean)."""
+        leans = {}
+        for flag in ([], ["--no-orientation-lean"]):
+            code, _, err = run([self.meta, "--geojson", self.path("lean.geojson"), "--stats", self.path("lean.json"),
+                                "--quiet", "--material", "metal"] + flag)
+            self.assertEqual(code, 0, err)
+            with open(self.path("lean.json")) as handle:
+                leans[bool(flag)] = json.load(handle)["orientation_lean_deg"]
+        self.assertEqual(leans[True], 0.0)
+        self.assertNotEqual(leans[False], 0.0)
+        self.assertLess(abs(leans[False]), 1.0)
+
     def test_rx_calibration(self):
         """The reference frames give the chains' relative responses: after the correction the
         chains differ by less than 0.01 dB and 0.1 degree, and the DC offset is removed."""

@@ -175,8 +175,6 @@ class qa_wall_fusion(gr_unittest.TestCase):
 
         def leaning(lean_deg, estimated):
             class Leaning(WallFusion):
-                ORIENTATION_LEAN = estimated
-
                 def _adjust_poses(self, det, odometry, poses, state, wall_cls, axial=()):
                     # each echo's normal in the robot frame turned by lean * its y component
                     n = state["normals_r"]
@@ -184,7 +182,7 @@ class qa_wall_fusion(gr_unittest.TestCase):
                     leaned = dict(state, normals_r=np.column_stack((np.cos(a), np.sin(a))))
                     return super()._adjust_poses(det, odometry, poses, leaned, wall_cls, axial)
 
-            fusion = Leaning(RADAR, exact_settings(orientation_sigma_deg=1.0))
+            fusion = Leaning(RADAR, exact_settings(orientation_sigma_deg=1.0, orientation_lean=estimated))
             for pose_true, pose_reported in zip(true, reported):
                 fusion.add(pose_reported, wall_echoes(pose_true, walls))
             fused = fusion.build_map()

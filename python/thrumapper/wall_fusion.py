@@ -117,6 +117,10 @@ class FusionSettings:
     #: with the CSI, search for walls across the track from the line-of-sight walls where
     #: JADE reports none (an echo of the same delay as the mapped wall's; WallFusion._side_walls)
     side_walls: bool = True
+    #: estimate with the poses the angle by which the echoes' fitted normals lean in mirror
+    #: image on the two sides of the track (the corridor's double bounces), rather than take
+    #: it for heading (WallFusion.ORIENTATION_LEAN_SIGMA_DEG; docs/mapping.md, "The echoes' lean")
+    orientation_lean: bool = True
     #: odometry error model for the pose correction (1-sigma per step)
     odometry_scale_sigma: float = 0.01
     odometry_heading_sigma_deg_per_m: float = 0.5
@@ -620,11 +624,10 @@ class WallFusion:
     SCALE_PLAUSIBLE_SIGMAS = 3.0
     #: point landmarks' noise with CSI-fitted walls, in units of 2 * point_sigma_m
     CORNER_SIGMA_FACTOR = 3.0
-    #: the echoes' lean estimated with the poses: the double bounces between two facing walls
-    #: turn both walls' fitted normals by one angle in mirror image (0.8 deg on the office's
-    #: true map), which, with unequal echo counts on the two sides, was taken for heading and
-    #: turned whole maps (docs/mapping.md, "The echoes' lean"); its prior, degrees
-    ORIENTATION_LEAN = True
+    #: the prior of the echoes' lean (FusionSettings.orientation_lean), degrees: the double
+    #: bounces between two facing walls turn both walls' fitted normals by one angle in mirror
+    #: image (0.8 deg on the office's true map), which, with unequal echo counts on the two
+    #: sides, was taken for heading and turned whole maps (docs/mapping.md, "The echoes' lean")
     ORIENTATION_LEAN_SIGMA_DEG = 5.0
     MERGE_DELAY_S = 0.3e-9
     #: the CSI fit also takes an echo of no wall this near a mapped wall's line and this near
@@ -2479,7 +2482,7 @@ class WallFusion:
         obs_c_arr = np.array([i for i, _ in obs_c], int)
         obs_c_lm = np.array([j for _, j in obs_c], int)
         slot_of = np.array([wall_slot[labels[i]] for i in obs_w], int) if obs_w else np.zeros(0, int)
-        lean_side = normals_r[obs_w_arr, 1] if (obs_w and self.ORIENTATION_LEAN) else np.zeros(len(obs_w))
+        lean_side = normals_r[obs_w_arr, 1] if (obs_w and s.orientation_lean) else np.zeros(len(obs_w))
         lean_prior = math.radians(self.ORIENTATION_LEAN_SIGMA_DEG)
 
         def unpack(x):
