@@ -1142,9 +1142,7 @@ class WallFusion:
         a = poses[:-1, :2]
         b = poses[1:, :2]
         kept = []
-        for w in walls:
-            p0 = w["centre"] + w["t0"] * w["direction"]
-            p1 = w["centre"] + w["t1"] * w["direction"]
+        for w, p0, p1 in zip(walls, *self._segments(walls)):
             hit = bistatic.segments_cross(p0[None, :], p1[None, :], a, b)
             if not np.any(hit):
                 kept.append(w)
