@@ -228,7 +228,7 @@ def main(argv=None):
         written.append(args.stats)
     st = fused.stats
     print(f"thrumapper-map: {st['poses']} poses, {st['echoes']} echoes -> {st['walls']} walls, "
-          f"{st['corners']} corners ({st['ghosts']} ghost echoes, {st['skipped_early']} early, "
+          f"{st['corners']} corners, {st.get('openings', 0)} open doorways ({st['ghosts']} ghost echoes, {st['skipped_early']} early, "
           f"{st['skipped_nonfinite']} non-finite skipped) in {elapsed:.1f} s "
           f"({elapsed / max(st['poses'], 1):.3f} s/pose)", file=sys.stderr)
     for path in written:

@@ -66,7 +66,8 @@ def _get(d, key, default=None):
 
 def map_from_pmt(msg):
     """wall_fusion's map message as plain Python: {"walls": [(cls, confidence, start (2,),
-    end (2,), source)], "corners": [(position (2,), confidence)], "detections": {cls: (n, 2)},
+    end (2,), source)], "corners": [(position (2,), confidence)], "openings": [(start (2,),
+    end (2,))], "detections": {cls: (n, 2)},
     "trajectory": (n, 3), "num_poses": int}. Raises LiveMapError naming the bad entry."""
     if not pmt.is_dict(msg):
         raise LiveMapError("map message: expected a dict (wall_fusion's \"map\" port)")
@@ -102,6 +103,15 @@ def map_from_pmt(msg):
                 conf = _get(c, "confidence")
                 if p.shape == (2,) and np.all(np.isfinite(p)):
                     corners.append((p, pmt.to_double(conf) if conf is not None and pmt.is_number(conf) else 1.0))
+    openings = []  # open doorways: (start (2,), end (2,)); a message without them has none
+    vec = _get(msg, "openings")
+    if vec is not None and pmt.is_vector(vec):
+        for i in range(pmt.length(vec)):
+            o = pmt.vector_ref(vec, i)
+            if pmt.is_dict(o) and _get(o, "start") is not None and _get(o, "end") is not None:
+                start, end = _f64(_get(o, "start"), f"openings[{i}].start"), _f64(_get(o, "end"), f"openings[{i}].end")
+                if start.shape == (2,) and end.shape == (2,) and np.all(np.isfinite(np.r_[start, end])):
+                    openings.append((start, end))
     detections = {}
     det = _get(msg, "detections")
     if det is not None and pmt.is_dict(det):
@@ -119,8 +129,8 @@ def map_from_pmt(msg):
         trajectory = t.reshape(-1, 3)
     n = _get(msg, "num_poses")
     num_poses = int(pmt.to_long(n)) if n is not None and pmt.is_integer(n) else len(trajectory)
-    return {"walls": walls, "corners": corners, "detections": detections, "trajectory": trajectory,
-            "num_poses": num_poses}
+    return {"walls": walls, "corners": corners, "openings": openings, "detections": detections,
+            "trajectory": trajectory, "num_poses": num_poses}
 
 
 def paths_from_pmt(msg):
@@ -475,6 +485,9 @@ def _widget_class():
                 for i, (p, _) in enumerate(m["corners"]):
                     ax.plot(p[0], p[1], "s", ms=8, mfc="none", mec="tab:red", mew=2,
                             label="corner" if i == 0 else None)
+                for i, (start, end) in enumerate(m.get("openings", ())):  # as in the PNG
+                    ax.plot([start[0], end[0]], [start[1], end[1]], ":", color="tab:green", lw=1.5, marker="|",
+                            ms=10, mew=2, label="open doorway" if i == 0 else None)
                 t = m["trajectory"]
                 if len(t):
                     ax.plot(t[:, 0], t[:, 1], "-", color="k", lw=1.2, label="trajectory (fusion)")

@@ -37,7 +37,7 @@ def wall(cls, confidence, start, end):
 
 def map_message():
     """A map as wall_fusion publishes it: a corridor wall 0.7 m to the right, a hidden wall
-    1.65 m behind it, a corner, detections and three poses."""
+    1.65 m behind it, a corner, an open doorway, detections and three poses."""
     walls = pmt.make_vector(2, pmt.PMT_NIL)
     pmt.vector_set(walls, 0, wall("line_of_sight", 0.9, [0.0, -0.7], [5.0, -0.7]))
     pmt.vector_set(walls, 1, pmt.dict_add(wall("hidden", 0.5, [0.0, -2.35], [4.0, -2.35]), pmt.intern("source"),
@@ -46,12 +46,17 @@ def map_message():
     c = pmt.dict_add(pmt.make_dict(), pmt.intern("position"), f64([6.5, -0.7]))
     c = pmt.dict_add(c, pmt.intern("confidence"), pmt.from_double(0.8))
     pmt.vector_set(corners, 0, c)
+    openings = pmt.make_vector(1, pmt.PMT_NIL)  # a doorway in the corridor wall, past its end
+    o = pmt.dict_add(pmt.make_dict(), pmt.intern("start"), f64([5.0, -0.7]))
+    o = pmt.dict_add(o, pmt.intern("end"), f64([5.9, -0.7]))
+    pmt.vector_set(openings, 0, pmt.dict_add(o, pmt.intern("confidence"), pmt.from_double(0.8)))
     det = pmt.dict_add(pmt.make_dict(), pmt.intern("line_of_sight"), f64([1.0, -0.7, 2.0, -0.7]))
     det = pmt.dict_add(det, pmt.intern("hidden"), f64([1.0, -2.35]))
     msg = pmt.make_dict()
     msg = pmt.dict_add(msg, pmt.intern("num_poses"), pmt.from_long(3))
     msg = pmt.dict_add(msg, pmt.intern("walls"), walls)
     msg = pmt.dict_add(msg, pmt.intern("corners"), corners)
+    msg = pmt.dict_add(msg, pmt.intern("openings"), openings)
     msg = pmt.dict_add(msg, pmt.intern("detections"), det)
     return pmt.dict_add(msg, pmt.intern("trajectory"), f64([0, 0, 0, 0.2, 0, 0, 0.4, 0, 0]))
 
@@ -158,6 +163,10 @@ class qa_live_map(gr_unittest.TestCase):
         msg = pmt.dict_add(pmt.make_dict(), pmt.intern("walls"), bad)
         with self.assertRaisesRegex(LiveMapError, r"walls\[0\]"):
             map_from_pmt(msg)
+        parsed = map_from_pmt(map_message())
+        self.assertEqual(len(parsed["openings"]), 1)
+        self.assertAlmostEqual(float(np.hypot(*(parsed["openings"][0][1] - parsed["openings"][0][0]))), 0.9)
+        self.assertEqual(map_from_pmt(pmt.make_dict())["openings"], [])  # a message without them
         with self.assertRaises(ValueError):
             live_map(update_period_s=0)
 
@@ -186,6 +195,7 @@ class qa_live_map(gr_unittest.TestCase):
         self.assertIn("tab:blue", colours)
         self.assertIn("tab:orange", colours)
         self.assertIn("tab:red", [line.get_markeredgecolor() for line in widget.axes.get_lines()])
+        self.assertIn("open doorway", [line.get_label() for line in widget.axes.get_lines()])
         self.assertGreaterEqual(widget.redraws, 1)
         # the canvas really holds the blue corridor wall (#1f77b4)
         widget.canvas.draw()

@@ -808,6 +808,35 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertEqual(pmt.to_long(pmt.dict_ref(msg, pmt.intern("num_poses"), pmt.PMT_NIL)), 6)
         trajectory = pmt.f64vector_elements(pmt.dict_ref(msg, pmt.intern("trajectory"), pmt.PMT_NIL))
         self.assertEqual(len(trajectory), 18)
+        self.assertEqual(pmt.length(pmt.dict_ref(msg, pmt.intern("openings"), pmt.PMT_NIL)), 0)
+
+    def test_opening_in_geojson_pmt_and_png(self):
+        """An open doorway (MapOpening) travels with the map: a GeoJSON feature of a kind
+        FORMATS.md does not list (thrumapper-eval reads the map as before), the map message's
+        "openings" (live_map reads them back), and the PNG."""
+        from gnuradio.thrumapper.live_map import map_from_pmt
+        from gnuradio.thrumapper.wall_fusion import FusedMap, MapOpening, plot_map
+        import os
+        import tempfile
+        walls = [MapWall(np.array([0.0, -1.0]), np.array([2.0, -1.0]), np.array([0.0, 1.0]), "line_of_sight", 0.9, 10, 10, 0.01),
+                 MapWall(np.array([2.9, -1.0]), np.array([6.0, -1.0]), np.array([0.0, 1.0]), "line_of_sight", 0.9, 10, 10, 0.01)]
+        opening = MapOpening(np.array([2.0, -1.0]), np.array([2.9, -1.0]), np.array([0.0, 1.0]), 0.8, 4, 0.15)
+        poses = np.array([[0.0, 0.0, 0.0], [6.0, 0.0, 0.0]])
+        fused = FusedMap(walls, [], [], {"line_of_sight": np.array([[1.0, -1.0]])}, {}, poses, poses, [0, 1],
+                         {"openings": 1}, [opening])
+        doc = fused.to_geojson()
+        features = [f for f in doc["features"] if f["properties"]["kind"] == "opening"]
+        self.assertEqual(len(features), 1)
+        self.assertEqual(features[0]["geometry"]["coordinates"], [[2.0, -1.0], [2.9, -1.0]])
+        self.assertAlmostEqual(features[0]["properties"]["width_m"], 0.9)
+        self.assertEqual(len(evaluation.load_map(doc).walls), 2)  # the reader skips the kind it does not know
+        parsed = map_from_pmt(map_to_pmt(fused))
+        self.assertEqual(len(parsed["openings"]), 1)
+        np.testing.assert_allclose(parsed["openings"][0][1], [2.9, -1.0])
+        with tempfile.TemporaryDirectory() as tmp:
+            png = os.path.join(tmp, "map.png")
+            plot_map(fused, png)
+            self.assertGreater(os.path.getsize(png), 1000)
 
 
 if __name__ == "__main__":

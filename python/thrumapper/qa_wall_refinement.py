@@ -608,6 +608,50 @@ class qa_wall_refinement(gr_unittest.TestCase):
         unsplit = back_wall(mapped_with(sc, res, CLASS_SPLIT_MIN_POSES=0))
         self.assertTrue(unsplit and all(w.cls == "hidden" for w in unsplit), unsplit)
 
+    def test_open_doorway_found_and_the_wall_cut_there(self):
+        """A corridor 3 m wide (plasterboard faces y = -1.0 and 2.0, x = -2-10 m), the south
+        wall with two doors: one open at x = 2.05-2.95 m, one closed by a wooden leaf at
+        x = 5.05-5.95 m, and a brick wall 2 m behind it, surveyed along x = 0-8 m (without
+        the north wall a phantom wall is mapped 0.4 m beside the track, its two pieces with a
+        gap the test would take for a doorway: docs/mapping.md). In the open doorway the CSI holds next to
+        nothing of the wall's echo; the wooden leaf answers (_openings). The map has one
+        opening, within 0.2 m of the open door's jambs, the corridor wall is drawn with a gap
+        there and goes on past it; the closed door is wall. With OPENING_MIN_POSES = 0 the
+        wall is drawn across the doorway."""
+        data = straight_survey_data(
+            [{"name": "corridor", "segment": [[-2.0, -1.075], [10.0, -1.075]], "material": "plasterboard"},
+             {"name": "back", "segment": [[-2.0, -3.1], [10.0, -3.1]], "material": "brick"},
+             {"name": "north", "segment": [[-2.0, 2.075], [10.0, 2.075]], "material": "plasterboard"}], 8.0, 0.2)
+        data["doors"] = [{"wall": "corridor", "position_m": 4.5, "width_m": 0.9},
+                         {"wall": "corridor", "position_m": 7.5, "width_m": 0.9, "material": "wood"}]
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+
+        def corridor_cover(fused, x):  # line-of-sight walls on the corridor's face over x
+            return [w for w in fused.walls if w.cls == "line_of_sight" and abs(w.start_m[1] + 1.0) < 0.2
+                    and abs(w.end_m[1] + 1.0) < 0.2 and min(w.start_m[0], w.end_m[0]) < x < max(w.start_m[0], w.end_m[0])]
+
+        fused = mapped_with(sc, res)
+        self.assertEqual(len(fused.openings), 1, fused.openings)
+        self.assertEqual(fused.stats["openings"], 1)
+        opening = fused.openings[0]
+        xs = sorted((opening.start_m[0], opening.end_m[0]))
+        self.assertLess(abs(xs[0] - 2.05), 0.2, xs)
+        self.assertLess(abs(xs[1] - 2.95), 0.2, xs)
+        self.assertLess(abs(0.5 * (opening.start_m[1] + opening.end_m[1]) + 1.0), 0.1, opening)
+        self.assertGreater(opening.normal[1], 0.9)  # facing the robot, as the wall does
+        self.assertLess(opening.gain_ratio, importlib.import_module("gnuradio.thrumapper.wall_fusion").WallFusion.OPENING_GAIN_RATIO)
+        self.assertEqual(corridor_cover(fused, 2.5), [])  # the doorway is open on the map
+        for x in (1.0, 4.0, 5.5, 7.0):  # wall on both sides, and across the closed door
+            self.assertTrue(corridor_cover(fused, x), (x, fused.walls))
+        feature = [f for f in fused.to_geojson()["features"] if f["properties"]["kind"] == "opening"]
+        self.assertEqual(len(feature), 1)
+        self.assertAlmostEqual(feature[0]["properties"]["width_m"], xs[1] - xs[0], places=2)
+
+        closed = mapped_with(sc, res, OPENING_MIN_POSES=0)
+        self.assertEqual(closed.openings, [])
+        self.assertTrue(corridor_cover(closed, 2.5), closed.walls)
+
     def test_skewed_side_wall_found_where_jade_reports_one(self):
         """skewed_walls' first 6 m: the plasterboard walls skewed 18° to the left and 12° to the
         right of the track are 30° apart, and where their echoes come within a fraction of a

@@ -28,13 +28,15 @@ What it does with a survey (each step is in docs/mapping.md with its reasons):
    on their line.
 6. Classes by order along the ray: an echo whose legs cross another wall is hidden, otherwise
    line_of_sight; a wall takes its echoes' majority. Hidden echoes that a double bounce between
-   two line-of-sight walls explains (multipath ghosts) are dropped.
+   two line-of-sight walls explains (multipath ghosts) are dropped. With the CSI, open doorways
+   (a line-of-sight wall's echo missing between stretches that hold it) cut the walls.
 7. Pose correction: a sequential scan-to-map pass (each pose's line-of-sight echoes aligned
    with the walls its predecessors mapped, from the odometry's prediction), then a global
    least-squares adjustment of all poses with the line-of-sight walls and corners as landmarks
    and the odometry increments as constraints (scipy).
 """
 
+import dataclasses
 import json
 import math
 import threading
@@ -263,6 +265,23 @@ class MapCorner:
 
 
 @dataclass
+class MapOpening:
+    """An open doorway: a stretch of a line-of-sight wall where the CSI holds almost none of
+    the wall's echo between two stretches that hold it (WallFusion._openings). The wall is
+    drawn with a gap there; the opening lies along the wall's face."""
+    start_m: np.ndarray  # (2,) world
+    end_m: np.ndarray  # (2,)
+    normal: np.ndarray  # (2,) the wall's, toward the robot
+    confidence: float
+    num_poses: int  # poses whose specular point falls in it
+    gain_ratio: float  # the largest of their echo gains over the wall's around it
+
+    @property
+    def width_m(self):
+        return float(np.hypot(*(self.end_m - self.start_m)))
+
+
+@dataclass
 class FusedMap:
     """The map: walls, corners, the reflection points behind them, the trajectory."""
 
@@ -275,6 +294,7 @@ class FusedMap:
     odometry: np.ndarray  # (P, 3) as reported
     frame_indices: list
     stats: dict
+    openings: list = field(default_factory=list)  # MapOpening: open doorways in line-of-sight walls
 
     def to_geojson(self, fused_detections=True):
         """FORMATS.md's map: a FeatureCollection in world metres."""
@@ -302,6 +322,10 @@ class FusedMap:
                 "num_poses": int(c.num_poses), "walls": [int(w) for w in c.walls]}))
         for position, count in self.scatterers:
             features.append(_feature("Point", _xy(position), {"kind": "scatterer", "num_poses": int(count)}))
+        for o in self.openings:  # a kind FORMATS.md does not list: readers ignore it
+            features.append(_feature("LineString", [_xy(o.start_m), _xy(o.end_m)], {
+                "kind": "opening", "confidence": round(float(o.confidence), 4), "width_m": round(o.width_m, 3),
+                "num_poses": int(o.num_poses), "gain_ratio": round(float(o.gain_ratio), 3), "normal": _xy(o.normal)}))
         trajectory = self.trajectory[:, :2] if len(self.trajectory) else np.zeros((0, 2))
         if len(trajectory) == 1:
             trajectory = np.vstack((trajectory, trajectory))  # a LineString needs two points
@@ -2182,6 +2206,7 @@ class WallFusion:
         self._leak_estimated = False
         self._direct_leak_db = None
         self._line_gains = {}  # _line_gain's, by pose and line
+        self._found_openings = []  # _openings, for _in_opening
         s = self.settings
         odometry = np.array([g.pose for g in self.groups]).reshape(-1, 3)
         frame_indices = [g.frame_index for g in self.groups]
@@ -2753,6 +2778,8 @@ class WallFusion:
         absorbed = self._absorbed_by_side_walls(walls_in, wall_cls, side_walls)
         taken_echoes = [sum(int(walls_in[k]["members"].size) for k, n in absorbed.items() if n == n_side)
                         for n_side in range(len(side_walls))]
+        # open doorways, before the classes that look through them
+        openings = self._found_openings = self._timed("open doorways", self._openings, state, poses, wall_cls, side_walls)
         split_pieces = []  # (index in walls, the other pieces' MapWalls) of walls split by class
         opening = None
         if self._fits_on_csi and self.CLASS_SPLIT_MIN_POSES and any(c == HIDDEN for c in wall_cls):
@@ -2817,6 +2844,7 @@ class WallFusion:
         closing, room_corners = self._rooms_closed_at_end_walls(walls, end_walls, walls_in)
         walls.extend(closing)
         corners.extend(room_corners)
+        self._cut_at_openings(walls, corners, openings)
         for cls in CLASSES:
             detections[cls] = np.array(detections[cls]).reshape(-1, 2)
             echoes[cls] = np.array(echoes[cls]).reshape(-1, 2)
@@ -2826,11 +2854,12 @@ class WallFusion:
                       "wall_echoes": int(np.count_nonzero(labels >= 0)),
                       "corner_echoes": int(np.count_nonzero(labels == CORNER)),
                       "unassigned_echoes": int(np.count_nonzero((labels == UNASSIGNED) & ~ghosts)),
-                      "end_walls": len(end_walls), "side_walls": len(side_walls),
+                      "end_walls": len(end_walls), "side_walls": len(side_walls), "openings": len(openings),
                       "walls_absorbed_by_side_walls": len(absorbed), "inferred_walls": sum(1 for w in walls if w.inferred),
                       "walls_by_material": {m: sum(1 for w in walls if w.material == m)
                                             for m in sorted({w.material for w in walls if w.material})}})
-        return FusedMap(walls, corners, scatterers, detections, echoes, poses, odometry, frame_indices, stats)
+        return FusedMap(walls, corners, scatterers, detections, echoes, poses, odometry, frame_indices, stats,
+                        openings)
 
     def _class_pieces(self, wall, members, det_cls, group, pw, ends, wall_class, opening=None):
         """A hidden wall's stretches by its echoes' classes: [(t0, t1, class, member mask)]
@@ -2892,6 +2921,138 @@ class WallFusion:
             pieces.append((float(bounds[n]), float(bounds[n + 1]), int(r[2]), mine))
         return pieces
 
+    #: open doorways (_openings): a stretch of a line-of-sight wall where at least
+    #: OPENING_MIN_POSES consecutive poses' specular points find less than OPENING_GAIN_RATIO
+    #: of the echo gain the wall has within OPENING_REFERENCE_M of them (its median there),
+    #: with stretches that hold it on both sides, at most OPENING_MAX_M wide (wider, the wall
+    #: stops: its echoes already end there) and at least OPENING_MIN_M. On the office floors' 8 surveys the open door
+    #: held 0.09-0.29 of its wall's gain, the closed wooden leaves 0.53 and more
+    #: (docs/mapping.md, "Open doorways"). 0 poses: no openings are looked for.
+    OPENING_GAIN_RATIO = 0.3
+    OPENING_MIN_POSES = 2
+    OPENING_REFERENCE_M = 2.0
+    OPENING_MAX_M = 2.5
+    #: ...and at least this wide (narrower than a door: where many poses' specular points
+    #: crowd, on a wall across the track, a gap between two of them is not one)
+    OPENING_MIN_M = 0.5
+    #: a wall is cut at an opening on its line: within this of the opening's line, and this
+    #: near its orientation
+    OPENING_CUT_M = 0.15
+    OPENING_CUT_DEG = 10.0
+
+    def _openings(self, state, poses, wall_cls, side_walls=()):
+        """Open doorways in the line-of-sight walls, found on the CSI ([MapOpening]).
+
+        For each line (the collinear pieces of the line-of-sight walls mapped from echoes and
+        of the side walls), the gain of the line's echo at each pose whose specular point falls on its
+        mapped extent (_line_gain, the line's pieces left in: _seen_through_opening's
+        measure) is compared with the median gain of the line within OPENING_REFERENCE_M of
+        that point. A closed door is a wall too (a wooden leaf answers with half a
+        plasterboard wall's echo or more); an open one answers with almost nothing. The
+        opening runs halfway to the poses on either side that hold the echo."""
+        if not self._fits_on_csi or not self.OPENING_MIN_POSES or len(poses) < 3:
+            return []
+        walls_in = state["walls"]
+        los_in = [k for k, c in enumerate(wall_cls) if c == LOS]
+        self._refiner_map(state, poses, wall_cls)
+        # the lines: the collinear pieces of the line-of-sight walls mapped from echoes and of
+        # the side walls (a door may lie where a side wall meets a piece mapped from echoes)
+        items = [walls_in[k] for k in los_in] + list(side_walls)
+        lines = []  # (line dict, pieces left in for its gain, [(t0, t1) of its members along it])
+        for members in self._collinear_groups(items):
+            pieces = tuple(los_in[i] for i in members if i < len(los_in))
+            line = items[max(members, key=lambda i: items[i]["t1"] - items[i]["t0"])]
+            spans = []
+            for i in members:
+                w = items[i]
+                ts = [float((w["centre"] + t * w["direction"] - line["centre"]) @ line["direction"]) for t in (w["t0"], w["t1"])]
+                spans.append((min(ts), max(ts)))
+            lines.append((line, pieces, spans, [items[i] for i in members]))
+        found = []
+        for line, pieces, spans, members in lines:
+            # (t, gain) of the poses whose specular point lies on the line between its mapped
+            # pieces' outer ends: a doorway may also be where two pieces of the wall meet
+            hull = (min(a for a, _ in spans), max(b for _, b in spans))
+            profile = []
+            for t, g in sorted(self._specular_along(line, poses)):
+                if hull[0] <= t <= hull[1]:
+                    v = self._line_gain(g, line, pieces, poses)
+                    if v is not None and math.isfinite(v):
+                        profile.append((t, v))
+            if len(profile) < self.OPENING_MIN_POSES + 2:
+                continue
+            t = np.array([q[0] for q in profile])
+            gain = np.array([q[1] for q in profile])
+            ratio = np.full(t.size, np.inf)
+            for i in range(t.size):
+                near = gain[np.abs(t - t[i]) <= self.OPENING_REFERENCE_M]
+                if near.size >= 2 * self.OPENING_MIN_POSES + 1 and np.median(near) > 0:
+                    ratio[i] = gain[i] / float(np.median(near))
+            weak = ratio < self.OPENING_GAIN_RATIO
+            i = 0
+            while i < t.size:
+                if not weak[i]:
+                    i += 1
+                    continue
+                j = i
+                while j + 1 < t.size and weak[j + 1]:
+                    j += 1
+                # a doorway: poses that hold the echo on both sides
+                inside = i > 0 and j + 1 < t.size
+                t0, t1 = (0.5 * (t[i - 1] + t[i]), 0.5 * (t[j] + t[j + 1])) if inside else (0.0, 0.0)
+                if inside and j - i + 1 >= self.OPENING_MIN_POSES and \
+                        self.OPENING_MIN_M <= t1 - t0 <= self.OPENING_MAX_M:
+                    # on the piece nearest the opening's middle: its line, not the first piece's
+                    tm = 0.5 * (t0 + t1)
+                    k = min(range(len(spans)), key=lambda n: max(spans[n][0] - tm, tm - spans[n][1], 0.0))
+                    w = members[k]
+                    ends = []
+                    for tq in (t0, t1):
+                        q = line["centre"] + tq * line["direction"]
+                        ends.append(q - float((q - w["centre"]) @ w["normal"]) * w["normal"])
+                    worst = float(np.max(ratio[i:j + 1]))
+                    found.append(MapOpening(ends[0], ends[1], w["normal"].copy(),
+                                            min(1.0, (j - i + 1) / 4.0) * (1.0 - worst), j - i + 1, worst))
+                i = j + 1
+        return found
+
+    def _in_opening(self, point):
+        """Whether a world point lies in one of the openings this build_map found."""
+        for o in getattr(self, "_found_openings", ()):
+            d = o.end_m - o.start_m
+            width = float(np.hypot(*d))
+            along = float((point - o.start_m) @ d) / max(width, 1e-12)
+            if 0.0 <= along <= width and abs(float((point - o.start_m) @ o.normal)) <= self.OPENING_CUT_M:
+                return True
+        return False
+
+    def _cut_at_openings(self, walls, corners, openings):
+        """The line-of-sight walls cut where an opening lies on them (in place: the part
+        before it keeps the wall's index, which the corners use; the part after it goes to
+        the end of the list, and the corners nearer it follow it)."""
+        cos_tol = math.cos(math.radians(self.OPENING_CUT_DEG))
+        for o in openings:
+            mid = 0.5 * (o.start_m + o.end_m)
+            for i in range(len(walls)):
+                w = walls[i]
+                length = w.length_m
+                if w.cls != CLASSES[LOS] or length <= 0 or abs(float(w.normal @ o.normal)) < cos_tol or \
+                        abs(float((mid - w.start_m) @ w.normal)) > self.OPENING_CUT_M:
+                    continue
+                e = (w.end_m - w.start_m) / length
+                q0, q1 = sorted(float((p - w.start_m) @ e) for p in (o.start_m, o.end_m))
+                if q1 <= 0.0 or q0 >= length or (q0 <= 0.05 and q1 >= length - 0.05):
+                    continue  # not on it, or all of it (a wall the CSI does not hold: left as it is)
+                parts = [(0.0, q0)] if q0 > 0.05 else []
+                parts += [(q1, length)] if length - q1 > 0.05 else []
+                made = [dataclasses.replace(w, start_m=w.start_m + a * e, end_m=w.start_m + b * e) for a, b in parts]
+                walls[i] = made[0]
+                if len(made) > 1:
+                    walls.append(made[1])
+                    for c in corners:
+                        if i in c.walls and np.hypot(*(c.position_m - made[1].start_m)) < np.hypot(*(c.position_m - made[0].end_m)):
+                            c.walls = tuple(len(walls) - 1 if n == i else n for n in c.walls)
+
     def _seen_through_opening(self, g, point, lines, poses, along=None):
         """Whether pose g sees `point` (world) with no line-of-sight wall between: every line
         of `lines` ((wall dict, the mapped walls on its line, left in the data for its gain):
@@ -2912,6 +3073,8 @@ class WallFusion:
                 continue
             cross = robot + (point - robot) * (side_robot / (side_robot - side_point))
             t_cross = float((cross - line["centre"]) @ line["direction"])
+            if self._in_opening(cross):
+                continue  # an open doorway (_openings)
             if exclude and line["t0"] <= t_cross <= line["t1"]:
                 return False  # a wall mapped from echoes stands there
             here = self._line_gain(g, line, exclude, poses)
@@ -3041,7 +3204,8 @@ def wall_style(source):
 
 def plot_map(fused, png_path, title=None, truth=None, dpi=120):
     """A PNG of the map (matplotlib): walls by class (line width by confidence), the fused
-    detections and the measured echoes, corners, the corrected trajectory and the odometry.
+    detections and the measured echoes, corners, open doorways, the corrected trajectory and
+    the odometry.
     truth: an optional FORMATS.md map (a dict or a path) drawn faintly underneath."""
     import matplotlib
     matplotlib.use("Agg")
@@ -3081,6 +3245,10 @@ def plot_map(fused, png_path, title=None, truth=None, dpi=120):
             ax.plot(d[:, 0], d[:, 1], "x", ms=4, color=colours[cls], mew=1.0)
     for i, c in enumerate(fused.corners):
         ax.plot(*c.position_m, "s", ms=8, mfc="none", mec="tab:red", mew=2, label="corner" if i == 0 else None)
+    for i, o in enumerate(fused.openings):  # the gap in the wall, its jambs marked
+        xy = np.vstack((o.start_m, o.end_m))
+        ax.plot(xy[:, 0], xy[:, 1], ":", color="tab:green", lw=1.5, marker="|", ms=10, mew=2,
+                label="open doorway" if i == 0 else None)
     for i, (p, _) in enumerate(fused.scatterers):
         ax.plot(*p, "d", ms=5, color="tab:gray", label="point scatterer" if i == 0 else None)
     if len(fused.odometry) > 1:
@@ -3196,7 +3364,8 @@ def csi_from_pmt(msg):
 def map_to_pmt(fused):
     """The map as a PMT dict: num_poses, walls (vector of dicts: class, confidence, start,
     end, num_poses, source, and material when estimated), corners (vector of dicts: position,
-    confidence, class), detections (dict class -> f64vector x0, y0, x1, y1, ...), trajectory
+    confidence, class), openings (vector of dicts: start, end, confidence, width_m: open
+    doorways), detections (dict class -> f64vector x0, y0, x1, y1, ...), trajectory
     (f64vector x, y, heading per pose), stats (dict of numbers)."""
     def f64(values):
         values = [float(v) for v in np.asarray(values, float).reshape(-1)]
@@ -3221,6 +3390,14 @@ def map_to_pmt(fused):
         d = pmt.dict_add(d, pmt.intern("confidence"), pmt.from_double(float(c.confidence)))
         d = pmt.dict_add(d, pmt.intern("class"), pmt.intern(c.cls))
         pmt.vector_set(corners, i, d)
+    openings = pmt.make_vector(len(fused.openings), pmt.PMT_NIL)
+    for i, o in enumerate(fused.openings):
+        d = pmt.make_dict()
+        d = pmt.dict_add(d, pmt.intern("start"), f64(o.start_m))
+        d = pmt.dict_add(d, pmt.intern("end"), f64(o.end_m))
+        d = pmt.dict_add(d, pmt.intern("confidence"), pmt.from_double(float(o.confidence)))
+        d = pmt.dict_add(d, pmt.intern("width_m"), pmt.from_double(o.width_m))
+        pmt.vector_set(openings, i, d)
     detections = pmt.make_dict()
     for cls in CLASSES:
         detections = pmt.dict_add(detections, pmt.intern(cls), f64(fused.detections.get(cls, np.zeros((0, 2)))))
@@ -3232,6 +3409,7 @@ def map_to_pmt(fused):
     msg = pmt.dict_add(msg, pmt.intern("num_poses"), pmt.from_long(len(fused.trajectory)))
     msg = pmt.dict_add(msg, pmt.intern("walls"), walls)
     msg = pmt.dict_add(msg, pmt.intern("corners"), corners)
+    msg = pmt.dict_add(msg, pmt.intern("openings"), openings)
     msg = pmt.dict_add(msg, pmt.intern("detections"), detections)
     msg = pmt.dict_add(msg, pmt.intern("trajectory"), f64(fused.trajectory))
     msg = pmt.dict_add(msg, pmt.intern("stats"), stats)
