@@ -438,6 +438,37 @@ class qa_wall_refinement(gr_unittest.TestCase):
             self.assertGreater(min(abs(w.start_m[1] + 2.325), abs(w.end_m[1] + 2.325)), 0.15, w)
         self.assertEqual(len(fused.stats["material_corrections_m"]), len(brick), fused.stats["material_corrections_m"])
 
+    def test_wall_behind_a_side_wall_labelled_through_it(self):
+        """A corridor of two plasterboard walls 2.15 m apart, and 3.1 m behind the north one a
+        concrete wall (face y = 4.15 m), the robot down the corridor's middle, x = 0-6 m. JADE
+        does not report the north corridor wall (its echo has the south wall's delay): the
+        side-wall search finds it on the CSI. The concrete wall is seen through it. Its
+        material is told with the side wall in the refiner's map (WallFusion.
+        _estimate_materials): modelled through it and measured against its echo at the same
+        pose, the concrete wall answers about 2.5 times stronger than the plasterboard model,
+        is labelled a dense material and moved onto its face. Without the side wall there (the
+        tree before), it was modelled as if nothing stood in front, labelled plasterboard and
+        left 0.23-0.3 m beyond its face."""
+        data = straight_survey_data(
+            [{"name": "south", "segment": [[-2.0, -1.075], [10.0, -1.075]], "material": "plasterboard"},
+             {"name": "north", "segment": [[-2.0, 1.075], [10.0, 1.075]], "material": "plasterboard"},
+             {"name": "exterior", "segment": [[-2.0, 4.25], [10.0, 4.25]], "material": "concrete"}], 6.0, 0.2)
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+        with tempfile.TemporaryDirectory() as tmp:
+            fused, _ = cli_map.map_survey(written_survey(tmp, sc, res, res.poses_true),
+                                          fusion_settings=wf_settings(correct_poses=False))
+        side = [w for w in fused.walls if w.source == "side_wall"]
+        self.assertTrue(side and all(abs(w.start_m[1] - 1.0) < 0.1 for w in side), fused.walls)
+        exterior = [w for w in fused.walls if w.source == "echoes" and min(w.start_m[1], w.end_m[1]) > 3.0
+                    and abs(w.normal[1]) > 0.9]  # (its free end at x = 10 m is mapped too: a short wall across)
+        self.assertEqual(len(exterior), 1, fused.walls)
+        self.assertEqual(exterior[0].cls, "hidden")
+        self.assertIn(exterior[0].material, ("brick", "concrete"))
+        for end in (exterior[0].start_m, exterior[0].end_m):
+            self.assertLess(abs(end[1] - 4.15), 0.1, exterior[0])
+        self.assertEqual(len(fused.stats["material_corrections_m"]), 1, fused.stats)
+
     def test_line_of_sight_brick_wall_moved_by_its_material(self):
         """skewed_walls: a brick wall (20 cm, εr 3.91, face at y = -1.0, x = 6 .. 11.5) in
         view of the robot beside a plasterboard wall skewed 12° that faces the same way; the

@@ -1466,7 +1466,7 @@ class WallFusion:
                     d_delay[members] = det["delay"][members] - fit[1]
         return unconfirmed, (d_aoa, d_delay)
 
-    def _estimate_materials(self, state, poses, wall_cls):
+    def _estimate_materials(self, state, poses, wall_cls, side_walls=()):
         """Each wall's material from how strong its echoes are (docs/mapping.md, "Materials"):
         {wall index: preset name} for the walls seen from at least MATERIAL_MIN_POSES poses.
 
@@ -1479,24 +1479,38 @@ class WallFusion:
         0.4). Per wall, the median of that log ratio over its poses is compared with what
         each candidate material would give (CsiWallRefiner.echo_strength), and the nearest
         is taken. The line-of-sight walls are the reference (nearest first, in the loop
-        below), so the survey's material must be most of theirs (a corridor)."""
-        self._refiner_map(state, poses, wall_cls)
+        below), so the survey's material must be most of theirs (a corridor).
+
+        The side walls found on the CSI (side_walls) are in the refiner's map here, line of
+        sight, after the map's walls: a wall behind one is modelled through it (the
+        transmission and the slab's delay of both legs) and measured against it at the same
+        pose, as behind a corridor wall mapped from echoes. Without them the office's
+        exterior wall behind its north corridor wall's side walls was modelled as if nothing
+        stood between, measured against other walls, and labelled plasterboard on 10 of its
+        20 pieces over 8 surveys (docs/mapping.md, "Materials"). They keep their place in
+        the refiner's map for _material_corrections."""
+        self._refiner_map(state, poses, wall_cls, side_walls)
         self._labelled_facing = set()
         survey = getattr(self.material, "name", "survey")
         candidates = {survey: self.material}
         candidates.update({n: scene.MATERIAL_PRESETS[n] for n in self.MATERIAL_CANDIDATES if n != survey})
         group = state["group"]
         strengths = {}
-        for k, w in enumerate(state["walls"]):
-            for g in np.unique(group[w["members"]]):
+        seen_by = [np.unique(group[w["members"]]) for w in state["walls"]]
+        for side in side_walls:  # the poses whose specular point falls on the side wall
+            seen_by.append(np.array([g for t, g in self._specular_along(side, poses) if side["t0"] <= t <= side["t1"]], int))
+        for k, groups_k in enumerate(seen_by):
+            for g in groups_k:
                 if int(g) in self.refiner.poses:
                     st = self.refiner.echo_strength(int(g), k, candidates)
                     if st is not None and st["gain"] > 0:
                         strengths[(int(g), k)] = st
+        n_map = len(state["walls"])
+        wall_cls = list(wall_cls) + [LOS] * len(side_walls)
         los = {gk: st["gain"] for gk, st in strengths.items() if wall_cls[gk[1]] == LOS}
         if len(los) < self.MATERIAL_MIN_POSES:
             return {}
-        walls = state["walls"]
+        walls = list(state["walls"]) + list(side_walls)
         cos_facing = math.cos(math.radians(30.0))
 
         def facing(j, k):  # on the same side of the corridor: lit by the same part of the TX beam
@@ -1518,10 +1532,11 @@ class WallFusion:
                 levels.setdefault(k, []).append((0.0, st["predicted"], False))
                 continue
             levels.setdefault(k, []).append((math.log(st["gain"] / float(np.median(refs))), st["predicted"], tier < 3))
-        self._labelled_facing = {k for k, items in levels.items() if 2 * sum(f for _, _, f in items) >= len(items)}
+        self._labelled_facing = {k for k, items in levels.items()
+                                 if k < n_map and 2 * sum(f for _, _, f in items) >= len(items)}
         names = {}
         for k, items in levels.items():
-            if len(items) < self.MATERIAL_MIN_POSES:
+            if len(items) < self.MATERIAL_MIN_POSES or k >= n_map:  # (the side walls: references only)
                 continue
             level = float(np.median([x for x, _, _ in items]))
             miss = {n: abs(level - float(np.median([math.log(max(p[n], 1e-12)) for _, p, _ in items])))
@@ -1557,13 +1572,16 @@ class WallFusion:
             moved[k] = round(float(offset), 4)
         return moved
 
-    def _refiner_map(self, state, poses, wall_cls=None):
+    def _refiner_map(self, state, poses, wall_cls=None, side_walls=()):
         """Hand the CSI refiner this map: its walls, the poses, JADE's paths per group, and
-        which walls are hidden (wall_cls; classified here when not given)."""
+        which walls are hidden (wall_cls; classified here when not given); the side walls
+        found on the CSI after them, line of sight, when given (their indices follow the
+        map's)."""
         if wall_cls is None:
             _, wall_cls = self._classify(state)
         paths = [[(q["aoa_rad"], q["delay_s"]) for q in g.paths] for g in self.groups]
-        self.refiner.set_map(state["walls"], poses, paths, [c == HIDDEN for c in wall_cls])
+        self.refiner.set_map(list(state["walls"]) + list(side_walls), poses, paths,
+                             [c == HIDDEN for c in wall_cls] + [False] * len(side_walls))
 
     def _fit_echo(self, g, k, wall, pose, wall_class):
         """refiner.fit_echo(g, k), reused from an earlier map of this build_map when wall k
@@ -2294,10 +2312,14 @@ class WallFusion:
             if self._fits_on_csi else []
         side_walls = self._timed("side walls", self._side_walls, state, poses, wall_cls) \
             if self._fits_on_csi and self.settings.side_walls else []
+        if side_walls:  # the walls behind the side walls are hidden before their materials are told
+            behind = self._behind_side_walls(state["walls"], wall_cls, state, poses, side_walls)
+            wall_cls = [HIDDEN if k in behind else c for k, c in enumerate(wall_cls)]
         self._wall_material_names = {}
         if self._fits_on_csi and self.settings.estimate_materials and self.material is not None \
                 and not self.material.conductor:
-            self._wall_material_names = self._timed("materials", self._estimate_materials, state, poses, wall_cls)
+            self._wall_material_names = self._timed("materials", self._estimate_materials, state, poses, wall_cls,
+                                                    side_walls)
             if self.settings.correct_materials:
                 stats["material_corrections_m"] = self._timed("materials", self._material_corrections, state, wall_cls)
         result = self._timed("output", self._assemble, det, poses, odometry, state, det_cls, wall_cls, ghosts,
