@@ -469,6 +469,60 @@ class qa_wall_refinement(gr_unittest.TestCase):
             self.assertLess(abs(end[1] - 4.15), 0.1, exterior[0])
         self.assertEqual(len(fused.stats["material_corrections_m"]), 1, fused.stats)
 
+    def test_short_piece_put_on_the_side_wall_line_where_the_csi_prefers_it(self):
+        """A corridor (plasterboard faces y = -1 and +1) surveyed x = 0-8 m, a pose a metre. The
+        map holds a piece of the south wall from 5 poses' echoes over x = 2.5-5.5 m mapped
+        0.2 m beyond its face and turned 3 degrees, and the side-wall search's line on the
+        true face over x = -1-2.3 m beside it. On the CSI of the piece's poses the line's echo
+        explains more than the piece's, and the piece is put on the line
+        (WallFusion._onto_side_lines), its extent kept. The other way round (the piece on the
+        face, the side line 0.3 m off) the piece stays; a piece seen from more than
+        ONTO_SIDE_MAX_POSES poses is not considered."""
+        sc, res, refiner, faces = corridor_survey(
+            8.0, {"diffuse": False, "edges": False, "clutter": False},
+            {"system_delay_s": 31.0e-9, "system_delay_known": True})
+        module = importlib.import_module("gnuradio.thrumapper.wall_fusion")
+        poses = sc.poses
+
+        def fusion_with(piece, side, poses_seen):
+            fusion = module.WallFusion(refiner.radar, wf_settings(correct_poses=False))
+            fusion.refiner = refiner
+            fusion.groups = [module._PoseGroup(pose, g) for g, pose in enumerate(poses)]
+            state = {"walls": [dict(piece, members=np.arange(len(poses_seen))), dict(faces[1], members=np.zeros(0, int))],
+                     "group": np.asarray(poses_seen)}
+            stats = fusion._onto_side_lines(state, poses, [module.LOS, module.LOS], [side])
+            return state["walls"][0], stats
+
+        def south(offset_m, tilt_deg, t0, t1):  # a piece of the south wall's line, centre x = 4
+            w = wall(-1.0 - offset_m, tilt_deg)
+            return dict(w, centre=np.array([4.0, -1.0 - offset_m]), t0=t0, t1=t1)
+
+        off = south(0.2, 3.0, -1.5, 1.5)
+        side = dict(faces[0], centre=np.array([0.65, -1.0]), t0=-1.65, t1=1.65)  # x = -1 .. 2.3
+        moved, stats = fusion_with(off, side, [2, 3, 4, 5, 6])
+        self.assertEqual(list(stats), [0])
+        self.assertAlmostEqual(abs(stats[0][0]), 0.2, delta=0.01)  # where its middle was
+        self.assertAlmostEqual(stats[0][1], 3.0, delta=0.01)
+        ends = sorted([moved["centre"] + t * moved["direction"] for t in (moved["t0"], moved["t1"])], key=lambda q: q[0])
+        for end, x in zip(ends, (2.5, 5.5)):
+            self.assertAlmostEqual(float(end[1]), -1.0, delta=1e-9)
+            self.assertAlmostEqual(float(end[0]), x, delta=0.1)
+
+        right = south(0.0, 0.0, -1.5, 1.5)
+        wrong_side = dict(side, centre=np.array([0.65, -1.3]))
+        kept, stats = fusion_with(right, wrong_side, [2, 3, 4, 5, 6])
+        self.assertEqual(stats, {})
+        self.assertAlmostEqual(float(kept["centre"][1]), -1.0, delta=1e-9)
+
+        _, stats = fusion_with(off, side, [0, 1, 2, 3, 4, 5, 6, 7, 8, 2, 3])  # 9 poses: considered
+        self.assertEqual(list(stats), [0])
+        module.WallFusion.ONTO_SIDE_MAX_POSES, saved = 4, module.WallFusion.ONTO_SIDE_MAX_POSES
+        try:
+            _, stats = fusion_with(off, side, [2, 3, 4, 5, 6])
+        finally:
+            module.WallFusion.ONTO_SIDE_MAX_POSES = saved
+        self.assertEqual(stats, {})
+
     def test_line_of_sight_brick_wall_moved_by_its_material(self):
         """skewed_walls: a brick wall (20 cm, εr 3.91, face at y = -1.0, x = 6 .. 11.5) in
         view of the robot beside a plasterboard wall skewed 12° that faces the same way; the

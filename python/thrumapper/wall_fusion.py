@@ -1426,6 +1426,64 @@ class WallFusion:
                     pairs.append((a, b))
         return pairs
 
+    #: a line-of-sight wall mapped from at most this many poses' echoes, facing the way of a
+    #: side wall found on the CSI (within LINE_ANGLE_DEG), within TWIN_M of its line at both
+    #: ends and within ONTO_SIDE_GAP_M of its extent along it, is put on that line where the
+    #: CSI of its poses prefers the line (_onto_side_lines)
+    ONTO_SIDE_MAX_POSES = 10
+    ONTO_SIDE_GAP_M = 1.0
+
+    def _onto_side_lines(self, state, poses, wall_cls, side_walls):
+        """Short line-of-sight pieces mapped from echoes put on the line of the side wall
+        beside them where the CSI says so: {wall index: (offset_m at its middle, turn_deg)}.
+
+        A piece from a few poses' echoes next to a door or a room's furniture can come out
+        0.2-0.3 m off its wall and turned (the office's north corridor wall, x = 16.4-18.5 m,
+        between two stretches the side-wall search found on the CSI). At the piece's poses
+        its echo and that of the side wall's line over the same stretch are each scored alone
+        against everything else modelled there (CsiWallRefiner.twin_scores, as for twins);
+        where the line explains more, the piece takes the line (its extent kept, its echoes
+        with it). After the pose rounds: the poses do not move with it."""
+        if not side_walls or not self._fits_on_csi:
+            return {}
+        walls, group = state["walls"], state["group"]
+        cos_tol = math.cos(math.radians(self.LINE_ANGLE_DEG))
+        paths = [[(q["aoa_rad"], q["delay_s"]) for q in g.paths] for g in self.groups]
+        hidden = [c == HIDDEN for c in wall_cls] + [False] * len(side_walls)
+        moved = {}
+        for k, w in enumerate(walls):
+            poses_k = np.unique(group[w["members"]])
+            if wall_cls[k] != LOS or poses_k.size > self.ONTO_SIDE_MAX_POSES:
+                continue
+            ends = [w["centre"] + t * w["direction"] for t in (w["t0"], w["t1"])]
+            best = None
+            for side in side_walls:
+                if float(side["normal"] @ w["normal"]) < cos_tol or \
+                        max(abs(float((e - side["centre"]) @ side["normal"])) for e in ends) > self.TWIN_M:
+                    continue
+                ts = sorted(float((e - side["centre"]) @ side["direction"]) for e in ends)
+                gap = max(side["t0"] - ts[1], ts[0] - side["t1"], 0.0)
+                if gap <= self.ONTO_SIDE_GAP_M and (best is None or gap < best[0]):
+                    best = (gap, side, ts)
+            if best is None:
+                continue
+            _, side, ts = best
+            line = dict(side, t0=ts[0], t1=ts[1])
+            self.refiner.set_map(list(walls) + list(side_walls) + [line], poses, paths, hidden + [False])
+            n = len(walls) + len(side_walls)
+            shared = [int(g) for g in poses_k if int(g) in self.refiner.poses and int(g) < len(poses)
+                      and self.refiner.sees(int(g), k) and self.refiner.sees(int(g), n)]
+            if not shared:
+                continue
+            scores = np.sum([self.refiner.twin_scores(g, k, n) for g in shared], axis=0)
+            if scores[1] > scores[0]:
+                middle = 0.5 * (ends[0] + ends[1])
+                turn = math.degrees(math.acos(min(1.0, abs(float(side["normal"] @ w["normal"])))))
+                moved[k] = (round(float((middle - side["centre"]) @ side["normal"]), 4), round(turn, 3))
+                walls[k] = dict(w, centre=side["centre"].copy(), normal=side["normal"].copy(),
+                                direction=side["direction"].copy(), t0=ts[0], t1=ts[1])
+        return moved
+
     def _in_front_of_others(self, state, pair):
         """Whether each wall of `pair` is seen in front of every mapped wall but the pair:
         most of its echoes' legs cross none of them (state["crossings"], the class rule's).
@@ -2315,6 +2373,9 @@ class WallFusion:
         if side_walls:  # the walls behind the side walls are hidden before their materials are told
             behind = self._behind_side_walls(state["walls"], wall_cls, state, poses, side_walls)
             wall_cls = [HIDDEN if k in behind else c for k, c in enumerate(wall_cls)]
+            onto = self._timed("side walls", self._onto_side_lines, state, poses, wall_cls, side_walls)
+            if onto:
+                stats["pieces_onto_side_walls"] = {str(k): v for k, v in onto.items()}
         self._wall_material_names = {}
         if self._fits_on_csi and self.settings.estimate_materials and self.material is not None \
                 and not self.material.conductor:
