@@ -243,6 +243,43 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertEqual(end_walls("edge", at_landmark=False), [])
         self.assertEqual(end_walls("edge", level=2.0), [])
 
+    def test_wall_clipped_where_it_runs_through_another(self):
+        """A corridor's north wall (face y = 1, x = -3 .. 10, its normal toward the robot) and
+        an end wall at x = -2.9 mapped from echoes from y = -1 to 1.6, 0.6 m past the north
+        wall's face (its echoes spread past the corner): the end wall is cut at y = 1, what
+        lay beyond is behind the north wall. Across a wall's free end (x = -4, beyond the
+        north wall's extent and its 0.1 m margin) or with the part beyond the larger one,
+        nothing is cut; a wall along the other is not crossed; a hidden wall is not cut."""
+        fusion = WallFusion(RADAR, exact_settings())
+
+        def line(centre, direction, normal, t0, t1):
+            return {"centre": np.array(centre, float), "direction": np.array(direction, float),
+                    "normal": np.array(normal, float), "t0": t0, "t1": t1}
+
+        north = line([3.5, 1.0], [1.0, 0.0], [0.0, -1.0], -6.5, 6.5)
+
+        def clipped(end_wall):
+            walls = [north, end_wall]
+            ends = [[w["t0"], w["t1"]] for w in walls]
+            cut = fusion._clip_at_crossings(walls, [LOS, LOS], ends)
+            return cut, ends
+
+        cut, ends = clipped(line([-2.9, 0.3], [0.0, 1.0], [1.0, 0.0], -1.3, 1.3))
+        self.assertEqual(cut, {0, 1})
+        self.assertAlmostEqual(ends[1][0], -1.3)
+        self.assertAlmostEqual(ends[1][1], 0.7, places=9)  # y = 0.3 + 0.7 = 1.0, the north face
+        # and the north wall's 0.1 m past the end wall's face (x = -3 .. -2.9) is behind it
+        self.assertAlmostEqual(ends[0][0], -6.4, places=9)
+        self.assertEqual(ends[0][1], 6.5)
+        cut, _ = clipped(line([-4.0, 0.3], [0.0, 1.0], [1.0, 0.0], -1.3, 1.3))
+        self.assertEqual(cut, set())
+        cut, _ = clipped(line([-2.9, 1.5], [0.0, 1.0], [1.0, 0.0], -1.3, 1.3))  # y = 0.2 .. 2.8
+        self.assertNotIn(1, cut)  # (the north wall's 0.1 m past it still is)
+        cut, _ = clipped(line([2.0, 1.2], [1.0, 0.0], [0.0, -1.0], -1.0, 1.0))
+        self.assertEqual(cut, set())
+        self.assertEqual(fusion._clip_at_crossings([north, line([-2.9, 0.3], [0.0, 1.0], [1.0, 0.0], -1.3, 1.3)],
+                                                   [LOS, HIDDEN], [[-6.5, 6.5], [-1.3, 1.3]]), set())
+
     def test_scale_beyond_the_odometry_spec_is_held(self):
         """The drifting corridor above with odometry 8 % long: the end walls and door frames
         measure the scale (1/1.08 = 0.926), but with the odometry stated good to 1 %

@@ -727,6 +727,9 @@ class qa_wall_refinement(gr_unittest.TestCase):
         self.assertGreater(opening.normal[1], 0.9)  # facing the robot, as the wall does
         self.assertLess(opening.gain_ratio, importlib.import_module("gnuradio.thrumapper.wall_fusion").WallFusion.OPENING_GAIN_RATIO)
         self.assertEqual(corridor_cover(fused, 2.5), [])  # the doorway is open on the map
+        los = fused.detections["line_of_sight"]  # and no wall's reflection point lies in it
+        self.assertFalse(np.any((los[:, 0] > xs[0]) & (los[:, 0] < xs[1]) & (np.abs(los[:, 1] + 1.0) < 0.15)), los)
+        self.assertIn("detections_in_openings", fused.stats)
         for x in (1.0, 4.0, 5.5, 7.0):  # wall on both sides, and across the closed door
             self.assertTrue(corridor_cover(fused, x), (x, fused.walls))
         feature = [f for f in fused.to_geojson()["features"] if f["properties"]["kind"] == "opening"]
