@@ -2882,7 +2882,7 @@ class WallFusion:
             def opening(g, point):
                 return self._seen_through_opening(g, point, lines, poses, along)
         in_openings = 0  # line-of-sight detections that fall in an open doorway
-        beyond_crossings = 0  # ...and past where their wall was clipped (_clip_at_crossings)
+        beyond_ends = 0  # ...and past their wall's drawn ends
         for k, w in enumerate(walls_in):
             members = w["members"]
             pieces = [(ends[k][0], ends[k][1], wall_cls[k], np.ones(members.size, bool))]
@@ -2907,10 +2907,14 @@ class WallFusion:
                     if owner_cls == CLASSES[LOS] and self._in_opening(fused_point):
                         in_openings += 1  # no wall there to reflect it: its echo stays, measured
                         continue
-                    if k in clipped and not (ends[k][0] - 0.05 <= float((fused_point - w["centre"]) @ w["direction"])
-                                             <= ends[k][1] + 0.05):
-                        beyond_crossings += 1  # on the part cut off behind another wall
-                        continue
+                    if owner_cls == CLASSES[LOS] and owner is w:
+                        # past the drawn wall's end: cut off behind another wall (_clip_at_crossings),
+                        # or the specular point of a turned wall, off the stretch its echoes mapped
+                        margin = 0.05 if k in clipped else self.DETECTION_BEYOND_END_M
+                        if not (ends[k][0] - margin <= float((fused_point - w["centre"]) @ w["direction"])
+                                <= ends[k][1] + margin):
+                            beyond_ends += 1
+                            continue
                     detections[owner_cls].append(fused_point)
             walls.append(made[0])
             if len(made) > 1:
@@ -2950,7 +2954,7 @@ class WallFusion:
                       "unassigned_echoes": int(np.count_nonzero((labels == UNASSIGNED) & ~ghosts)),
                       "end_walls": len(end_walls), "side_walls": len(side_walls), "openings": len(openings),
                       "detections_in_openings": in_openings, "walls_clipped_at_crossings": len(clipped),
-                      "detections_beyond_crossings": beyond_crossings,
+                      "detections_beyond_wall_ends": beyond_ends,
                       "walls_absorbed_by_side_walls": len(absorbed), "inferred_walls": sum(1 for w in walls if w.inferred),
                       "walls_by_material": {m: sum(1 for w in walls if w.material == m)
                                             for m in sorted({w.material for w in walls if w.material})}})
@@ -2962,6 +2966,9 @@ class WallFusion:
     #: the part beyond is under CLIP_MAX_SHARE of its length (_clip_at_crossings)
     CLIP_MARGIN_M = 0.1
     CLIP_MAX_SHARE = 0.5
+    #: a line-of-sight detection (an echo's specular point on its fitted wall) further than
+    #: this past the wall's drawn ends is left out (0.05 m past an end cut at a crossing)
+    DETECTION_BEYOND_END_M = 0.3
 
     def _clip_at_crossings(self, walls_in, wall_cls, ends, others=()):
         """Line-of-sight walls mapped from echoes cut where they run through the face of
