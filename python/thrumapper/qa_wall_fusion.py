@@ -243,6 +243,48 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertEqual(end_walls("edge", at_landmark=False), [])
         self.assertEqual(end_walls("edge", level=2.0), [])
 
+    def test_misfitted_continuation_of_an_oblique_wall_is_not_behind_it(self):
+        """The class rule hides a line-of-sight wall whose echoes cross the extension of
+        another (a corridor wall goes on past its echoes). A wall 18 degrees off the track,
+        mapped in two pieces, the second 0.35 m beyond the first's line at its near end and
+        turned 6 degrees toward it (JADE's angles put a stretch of an oblique wall off), is one
+        wall to the radar: two walls that near along one ray are one echo (c / 2B = 1.25 m).
+        It stays line of sight (_same_oblique_wall). The same two pieces along the track (a
+        corridor wall, and a piece behind its extension: a door leaf and what answers
+        through it) keep the rule: the second is hidden; so it is with the oblique rule off."""
+        poses = straight_poses(0.0, 10.0)
+
+        def piece(start, angle_deg, length):
+            d = np.array([math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))])
+            n = np.array([d[1], -d[0]])  # toward the track, south of these walls
+            return {"centre": np.array(start, float) + 0.5 * length * d, "direction": d, "normal": n,
+                    "t0": -0.5 * length, "t1": 0.5 * length}
+
+        def classes(first, second, oblique_deg=None):
+            fusion = WallFusion(RADAR, exact_settings())
+            if oblique_deg is not None:
+                fusion.SAME_WALL_OBLIQUE_DEG = oblique_deg
+            group, pw = [], []
+            for k, w in enumerate((first, second)):  # an echo a pose, from the pose nearest in x
+                for t in np.linspace(w["t0"] + 0.1, w["t1"] - 0.1, 6):
+                    point = w["centre"] + t * w["direction"]
+                    group.append(int(np.argmin(np.abs(poses[:, 0] - point[0]))))
+                    pw.append(point)
+            walls = [dict(first, members=np.arange(6)), dict(second, members=np.arange(6, 12))]
+            n = len(group)
+            state = {"walls": walls, "labels": np.array([0] * 6 + [1] * 6), "crossings": [[] for _ in range(n)],
+                     "blocked": np.zeros(n, bool), "poses": poses, "group": np.array(group), "pw": np.array(pw)}
+            return fusion._classify(state)[1]
+
+        oblique = piece([0.0, 1.0], 18.0, 4.0)
+        end = oblique["centre"] + oblique["t1"] * oblique["direction"]
+        behind = piece(end + 0.35 * np.array([-math.sin(math.radians(18.0)), math.cos(math.radians(18.0))]), 12.0, 4.0)
+        self.assertEqual(classes(oblique, behind), [LOS, LOS])
+        self.assertEqual(classes(oblique, behind, oblique_deg=90.0), [LOS, HIDDEN])
+        along = piece([0.0, 1.0], 0.0, 4.0)
+        behind_along = piece([4.0, 1.35], 2.0, 4.0)
+        self.assertEqual(classes(along, behind_along), [LOS, HIDDEN])
+
     def test_wall_clipped_where_it_runs_through_another(self):
         """A corridor's north wall (face y = 1, x = -3 .. 10, its normal toward the robot) and
         an end wall at x = -2.9 mapped from echoes from y = -1 to 1.6, 0.6 m past the north

@@ -1791,7 +1791,8 @@ class WallFusion:
             for j, k in enumerate(los):
                 members = state["walls"][k]["members"]
                 legs = self._legs_from(state["poses"], state["group"][members])
-                own_line = [i for i in range(len(los)) if line_of[i] == line_of[j]]
+                own_line = [i for i in range(len(los)) if line_of[i] == line_of[j]
+                            or self._same_oblique_wall(walls[j], walls[i], state["poses"])]
                 hit = self._legs_cross(*legs, state["pw"][members], a, b)
                 hit[:, own_line] = False
                 behind = np.any(hit, axis=1)
@@ -1812,6 +1813,26 @@ class WallFusion:
                     wall_cls[k] = HIDDEN
                     det_cls[members[behind]] = HIDDEN
         return det_cls, wall_cls
+
+    #: a line-of-sight wall within SAME_WALL_M of another's line at both ends and within
+    #: SAME_WALL_DEG of its direction, both at least SAME_WALL_OBLIQUE_DEG off the track, is
+    #: that wall's continuation mis-fitted, not a wall behind its extension (_classify)
+    SAME_WALL_M = 0.5
+    SAME_WALL_DEG = 10.0
+    SAME_WALL_OBLIQUE_DEG = 5.0
+
+    def _same_oblique_wall(self, behind, front, poses):
+        """Whether `behind` lies along `front`'s line (SAME_WALL_M, SAME_WALL_DEG) and both
+        run obliquely to the track (SAME_WALL_OBLIQUE_DEG off the mean heading)."""
+        if abs(float(behind["normal"] @ front["normal"])) < math.cos(math.radians(self.SAME_WALL_DEG)):
+            return False
+        heading = float(np.arctan2(np.mean(np.sin(poses[:, 2])), np.mean(np.cos(poses[:, 2]))))
+        track = np.array([math.cos(heading), math.sin(heading)])
+        sin_oblique = math.sin(math.radians(self.SAME_WALL_OBLIQUE_DEG))
+        if min(abs(float(w["normal"] @ track)) for w in (behind, front)) < sin_oblique:
+            return False
+        ends = [behind["centre"] + t * behind["direction"] for t in (behind["t0"], behind["t1"])]
+        return all(abs(float((e - front["centre"]) @ front["normal"])) <= self.SAME_WALL_M for e in ends)
 
     def _extension_on_csi(self, state, k, same_line, wall_cls):
         """How far (lo, hi) line-of-sight wall k goes on past its two ends, up to LINE_GAP_M,
