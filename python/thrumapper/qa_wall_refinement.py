@@ -488,8 +488,9 @@ class qa_wall_refinement(gr_unittest.TestCase):
             fusion = module.WallFusion(refiner.radar, wf_settings(correct_poses=False))
             fusion.refiner = refiner
             fusion.groups = [module._PoseGroup(pose, g) for g, pose in enumerate(poses)]
+            along = np.linspace(piece["t0"], piece["t1"], len(poses_seen))
             state = {"walls": [dict(piece, members=np.arange(len(poses_seen))), dict(faces[1], members=np.zeros(0, int))],
-                     "group": np.asarray(poses_seen)}
+                     "group": np.asarray(poses_seen), "pw": piece["centre"] + along[:, None] * piece["direction"]}
             stats = fusion._onto_side_lines(state, poses, [module.LOS, module.LOS], [side])
             return state["walls"][0], stats
 

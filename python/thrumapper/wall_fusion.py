@@ -1447,17 +1447,21 @@ class WallFusion:
         if not side_walls or not self._fits_on_csi:
             return {}
         walls, group = state["walls"], state["group"]
-        cos_tol = math.cos(math.radians(self.LINE_ANGLE_DEG))
+        cos_side = math.cos(math.radians(self.LINE_ANGLE_DEG))
         paths = [[(q["aoa_rad"], q["delay_s"]) for q in g.paths] for g in self.groups]
         hidden = [c == HIDDEN for c in wall_cls] + [False] * len(side_walls)
+        seen_from = [np.unique(group[w["members"]]) for w in walls]
         moved = {}
         for k, w in enumerate(walls):
-            poses_k = np.unique(group[w["members"]])
+            poses_k = seen_from[k]
             if wall_cls[k] != LOS or poses_k.size > self.ONTO_SIDE_MAX_POSES:
                 continue
             ends = [w["centre"] + t * w["direction"] for t in (w["t0"], w["t1"])]
+            # the lines it may lie on: the side walls (not the line of an oblique wall whose
+            # mis-fitted continuation it may be: there the CSI's choice is not the face's,
+            # docs/mapping.md "Short pieces put on a side wall's line")
             best = None
-            for side in side_walls:
+            for side, cos_tol in [(side, cos_side) for side in side_walls]:
                 if float(side["normal"] @ w["normal"]) < cos_tol or \
                         max(abs(float((e - side["centre"]) @ side["normal"])) for e in ends) > self.TWIN_M:
                     continue
@@ -1468,7 +1472,8 @@ class WallFusion:
             if best is None:
                 continue
             _, side, ts = best
-            line = dict(side, t0=ts[0], t1=ts[1])
+            line = {"centre": side["centre"], "normal": side["normal"], "direction": side["direction"],
+                    "t0": ts[0], "t1": ts[1]}
             self.refiner.set_map(list(walls) + list(side_walls) + [line], poses, paths, hidden + [False])
             n = len(walls) + len(side_walls)
             shared = [int(g) for g in poses_k if int(g) in self.refiner.poses and int(g) < len(poses)
@@ -1480,8 +1485,10 @@ class WallFusion:
                 middle = 0.5 * (ends[0] + ends[1])
                 turn = math.degrees(math.acos(min(1.0, abs(float(side["normal"] @ w["normal"])))))
                 moved[k] = (round(float((middle - side["centre"]) @ side["normal"]), 4), round(turn, 3))
+                resid = (state["pw"][w["members"]] - w["centre"]) @ w["normal"]
                 walls[k] = dict(w, centre=side["centre"].copy(), normal=side["normal"].copy(),
-                                direction=side["direction"].copy(), t0=ts[0], t1=ts[1])
+                                direction=side["direction"].copy(), t0=ts[0], t1=ts[1],
+                                own_fit_rms_m=float(np.sqrt(np.mean(resid ** 2))) if resid.size else 0.0)
         return moved
 
     def _in_front_of_others(self, state, pair):
@@ -2394,9 +2401,9 @@ class WallFusion:
         if side_walls:  # the walls behind the side walls are hidden before their materials are told
             behind = self._behind_side_walls(state["walls"], wall_cls, state, poses, side_walls)
             wall_cls = [HIDDEN if k in behind else c for k, c in enumerate(wall_cls)]
-            onto = self._timed("side walls", self._onto_side_lines, state, poses, wall_cls, side_walls)
-            if onto:
-                stats["pieces_onto_side_walls"] = {str(k): v for k, v in onto.items()}
+        onto = self._timed("side walls", self._onto_side_lines, state, poses, wall_cls, side_walls)
+        if onto:
+            stats["pieces_onto_side_walls"] = {str(k): v for k, v in onto.items()}
         self._wall_material_names = {}
         if self._fits_on_csi and self.settings.estimate_materials and self.material is not None \
                 and not self.material.conductor:
@@ -2912,7 +2919,8 @@ class WallFusion:
             made = []
             for t0, t1, piece_cls, mine in pieces:
                 resid = (pw[members[mine]] - w["centre"]) @ w["normal"]
-                rms = float(np.sqrt(np.mean(resid ** 2)))
+                # (a piece put on another's line by the CSI keeps its own fit's spread)
+                rms = float(w.get("own_fit_rms_m", np.sqrt(np.mean(resid ** 2))))
                 n_poses = int(np.unique(group[members[mine]]).size)
                 cls = CLASSES[piece_cls]
                 confidence = min(1.0, n_poses / 10.0) * math.exp(-(rms / s.line_tolerance_m) ** 2)
