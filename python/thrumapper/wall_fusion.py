@@ -1432,6 +1432,8 @@ class WallFusion:
     #: CSI of its poses prefers the line (_onto_side_lines)
     ONTO_SIDE_MAX_POSES = 10
     ONTO_SIDE_GAP_M = 1.0
+    #: ...where the line's echo explains this many times the piece's
+    ONTO_SIDE_MARGIN = 1.0
 
     def _onto_side_lines(self, state, poses, wall_cls, side_walls):
         """Short line-of-sight pieces mapped from echoes put on the line of the side wall
@@ -1481,7 +1483,7 @@ class WallFusion:
             if not shared:
                 continue
             scores = np.sum([self.refiner.twin_scores(g, k, n) for g in shared], axis=0)
-            if scores[1] > scores[0]:
+            if scores[1] > self.ONTO_SIDE_MARGIN * scores[0]:
                 middle = 0.5 * (ends[0] + ends[1])
                 turn = math.degrees(math.acos(min(1.0, abs(float(side["normal"] @ w["normal"])))))
                 moved[k] = (round(float((middle - side["centre"]) @ side["normal"]), 4), round(turn, 3))
