@@ -1112,6 +1112,8 @@ def truth_geojson(scene):
       at most truth.max_incidence_deg off its normal;
     - corners: where two walls' faces meet, with corner_type concave (a dihedral seen from
       inside) or convex, and the class of the best view;
+    - openings: the open doors (a door without a leaf) within truth.max_range_m of a pose, a
+      LineString across the gap on the wall's face toward the trajectory;
     - trajectory: the true poses.
     """
     geom = building_geometry(scene)
@@ -1174,6 +1176,26 @@ def truth_geojson(scene):
                     "walls": [int(geom.wall_index[i]), int(geom.wall_index[j])],
                 },
             })
+    for i, door in enumerate(scene.doors):
+        if door.material is not None:
+            continue  # a closed door is wall: its leaf is among the walls above
+        # an open doorway: the gap on the wall's face toward the trajectory, where some pose
+        # is within truth.max_range_m of it
+        wall = scene.walls[door.wall_index]
+        direction = (wall.end_m - wall.start_m) / wall.length_m
+        normal = np.array([-direction[1], direction[0]])
+        centre = wall.start_m + door.position_m * direction
+        if not np.any(np.hypot(*(poses_xy - centre).T) <= truth["max_range_m"]):
+            continue
+        side = 1.0 if float(np.mean(poses_xy - centre, axis=0) @ normal) >= 0 else -1.0
+        face = centre + side * 0.5 * wall.thickness_m * normal
+        ends = [face + t * direction for t in (-0.5 * door.width_m, 0.5 * door.width_m)]
+        features.append({
+            "type": "Feature",
+            "geometry": {"type": "LineString", "coordinates": [[float(x), float(y)] for x, y in ends]},
+            "properties": {"kind": "opening", "confidence": 1.0, "width_m": float(door.width_m), "door": i,
+                           "wall": int(wall.index), "name": wall.name},
+        })
     features.append({
         "type": "Feature",
         # A LineString needs two positions: a single pose is repeated.

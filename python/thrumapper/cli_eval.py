@@ -13,7 +13,9 @@ what it measures, per class (line_of_sight, hidden):
                     nearest true wall face of the same class: RMS and median
   coverage          true wall length within --coverage-tolerance (0.3 m) of a map wall
   false wall        map wall length farther than --false-tolerance (0.5 m) from every true wall
-and overall: true corners with a map corner within --corner-tolerance (0.5 m), and the
+and overall: true corners with a map corner within --corner-tolerance (0.5 m), open doorways
+(features "kind": "opening", which thrumapper-map and thrumapper-sim's truth write) found within
+--opening-tolerance (0.5 m) of a true one's middle and the RMS error of their jambs, and the
 trajectory error (pointwise RMS between the map's and the true trajectory).
 
 Both files are FORMATS.md maps: a FeatureCollection with "thrumapper:crs": "local-metres".
@@ -32,7 +34,7 @@ def _parser():
     parser = argparse.ArgumentParser(
         prog="thrumapper-eval",
         description="Score a thrumapper map against the ground truth: wall detection error,\n"
-                    "coverage and false walls per class, corners found, trajectory error.",
+                    "coverage and false walls per class, corners and open doorways found, trajectory error.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -45,6 +47,9 @@ def _parser():
                         help="a map wall counts as false beyond this distance from every true wall (default 0.5 m)")
     parser.add_argument("--corner-tolerance", type=float, default=0.5, metavar="M",
                         help="a true corner counts as found within this distance of a map corner (default 0.5 m)")
+    parser.add_argument("--opening-tolerance", type=float, default=0.5, metavar="M",
+                        help="a true open doorway counts as found when a map opening's middle is within this "
+                             "distance of its middle (default 0.5 m)")
     return parser
 
 
@@ -52,7 +57,7 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     from . import evaluation
 
-    for name in ("coverage_tolerance", "false_tolerance", "corner_tolerance"):
+    for name in ("coverage_tolerance", "false_tolerance", "corner_tolerance", "opening_tolerance"):
         if not getattr(args, name) > 0:
             print(f"thrumapper-eval: error: --{name.replace('_', '-')} must be > 0", file=sys.stderr)
             return 2
@@ -63,7 +68,8 @@ def main(argv=None) -> int:
         print(f"thrumapper-eval: error: {err}", file=sys.stderr)
         return 2
     scores = evaluation.score_map(map_data, truth_data, coverage_tolerance_m=args.coverage_tolerance,
-                                  false_tolerance_m=args.false_tolerance, corner_tolerance_m=args.corner_tolerance)
+                                  false_tolerance_m=args.false_tolerance, corner_tolerance_m=args.corner_tolerance,
+                                  opening_tolerance_m=args.opening_tolerance)
     if args.json:
         print(json.dumps(scores, indent=2))
     else:

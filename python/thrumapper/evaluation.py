@@ -11,7 +11,9 @@ Per class (line_of_sight, hidden):
 - false wall length: map wall length farther than false_tolerance_m (0.5 m) from every true
   wall face;
 and overall: true corners with a map corner within corner_tolerance_m (0.5 m), map corners
-near no true corner, and the trajectory error (pointwise RMS when the map's trajectory has as
+near no true corner, open doorways ("kind": "opening", the project's own feature) found
+within opening_tolerance_m (0.5 m) of a true one's middle and their jambs' error, and the
+trajectory error (pointwise RMS when the map's trajectory has as
 many points as the truth's; otherwise the RMS distance of its points to the true path, flagged).
 
 Lengths are measured by sampling every line at sample_m (1 cm) and weighting each sample by
@@ -41,6 +43,7 @@ class MapData:
     walls: list = field(default_factory=list)  # dicts: coordinates (n, 2), class, confidence
     detections: list = field(default_factory=list)  # dicts: points (n, 2), class
     corners: list = field(default_factory=list)  # dicts: position (2,), confidence, class (or None)
+    openings: list = field(default_factory=list)  # (2, 2) arrays: an open doorway's two ends
     trajectory: np.ndarray = None  # (T, 2) or None
 
 
@@ -174,6 +177,9 @@ def load_map(source, label=None):
                 "confidence": _confidence(properties, where),
                 "class": _class(properties, where, required=False),
             })
+        elif kind == "opening":  # an open doorway (not in FORMATS.md's list: the project's own)
+            ends = _geometry(feature, where, "LineString")
+            result.openings.append(np.vstack((ends[0], ends[-1])))
         elif kind == "trajectory":
             if result.trajectory is not None:
                 raise MapFormatError(f"{where}: a second trajectory feature; a map has one")
@@ -241,8 +247,35 @@ def _stats(distances):
 # ----------------------------------------------------------------------------------------
 # Scoring
 # ----------------------------------------------------------------------------------------
+def _score_openings(ours, true, tolerance_m):
+    """Open doorways: a true one is found when a map opening's middle lies within
+    tolerance_m of its middle (each map opening counts once); for those found, the RMS
+    distance of the map opening's two ends to the true one's (its jambs)."""
+    out = {"truth": len(true), "map": len(ours), "found": 0, "fraction": None, "unmatched_map": len(ours),
+           "jamb_error_rms_m": None}
+    if not true:
+        return out
+    free = list(range(len(ours)))
+    jambs = []
+    for t in true:
+        if not free:
+            break
+        gaps = [float(np.hypot(*(ours[i].mean(axis=0) - t.mean(axis=0)))) for i in free]
+        best = int(np.argmin(gaps))
+        if gaps[best] <= tolerance_m:
+            o = ours[free.pop(best)]
+            same, swapped = np.hypot(*(o - t).T), np.hypot(*(o[::-1] - t).T)  # either way round
+            jambs += (same if np.sum(same ** 2) <= np.sum(swapped ** 2) else swapped).tolist()
+            out["found"] += 1
+    out["fraction"] = out["found"] / len(true)
+    out["unmatched_map"] = len(free)
+    if jambs:
+        out["jamb_error_rms_m"] = float(np.sqrt(np.mean(np.square(jambs))))
+    return out
+
+
 def score_map(map_data, truth_data, *, coverage_tolerance_m=0.3, false_tolerance_m=0.5, corner_tolerance_m=0.5,
-              sample_m=0.01):
+              sample_m=0.01, opening_tolerance_m=0.5):
     """Score a map against the truth (MapData, or anything load_map takes). Returns a dict
     of plain numbers (None where a quantity does not exist), ready for json.dumps."""
     if not isinstance(map_data, MapData):
@@ -289,6 +322,8 @@ def score_map(map_data, truth_data, *, coverage_tolerance_m=0.3, false_tolerance
     if truth_corners.shape[0]:
         corners["fraction"] = corners["found"] / truth_corners.shape[0]
 
+    openings = _score_openings(map_data.openings, truth_data.openings, opening_tolerance_m)
+
     trajectory = None
     if map_data.trajectory is not None and truth_data.trajectory is not None:
         ours, true = map_data.trajectory, truth_data.trajectory
@@ -309,9 +344,10 @@ def score_map(map_data, truth_data, *, coverage_tolerance_m=0.3, false_tolerance
         "false_wall_length_m": float(total_false),
         "map_wall_length_m": float(sum(c["map_wall_length_m"] for c in classes.values())),
         "corners": corners,
+        "openings": openings,
         "trajectory": trajectory,
         "tolerances_m": {"coverage": coverage_tolerance_m, "false_wall": false_tolerance_m,
-                         "corner": corner_tolerance_m, "sample": sample_m},
+                         "corner": corner_tolerance_m, "sample": sample_m, "opening": opening_tolerance_m},
     }
 
 
@@ -345,6 +381,12 @@ def format_table(scores):
     lines.append(f"corners found within {tol['corner']:g} m: {corners['found']} of {corners['truth']}"
                  + (f" ({corners['fraction'] * 100:.1f} %)" if corners["fraction"] is not None else "")
                  + f"; map corners matching no true corner: {corners['unmatched_map']}")
+    openings = scores.get("openings")
+    if openings and (openings["truth"] or openings["map"]):
+        lines.append(f"open doorways found within {tol.get('opening', 0.5):g} m: {openings['found']} of "
+                     f"{openings['truth']}; map openings matching none: {openings['unmatched_map']}"
+                     + (f"; jamb error RMS {openings['jamb_error_rms_m']:.3f} m"
+                        if openings["jamb_error_rms_m"] is not None else ""))
     lines.append(f"false wall length, all classes: {scores['false_wall_length_m']:.2f} m "
                  f"of {scores['map_wall_length_m']:.2f} m mapped")
     trajectory = scores["trajectory"]

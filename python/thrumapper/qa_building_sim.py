@@ -369,6 +369,20 @@ class qa_building_sim(gr_unittest.TestCase):
         # The room's far corner (back face y = -2.35, end wall face x = 6.525) is seen through the LoS wall.
         self.assertEqual(positions[(6.525, -2.35)]["class"], "hidden")
 
+    def test_truth_open_doorway_of_office_scene(self):
+        """office_floor's north corridor wall (centre line y = 1.075, 15 cm) has one door left
+        open, centred 17.2 m from the wall's first point (x = -3): the truth has one opening,
+        across x = 13.75-14.65 m on the face toward the corridor (y = 1.0); its closed doors
+        are walls (door leaves), not openings."""
+        scene = scene_mod.load_scene(os.path.join(SCENES, "office_floor.yaml"))
+        truth = building_sim.truth_geojson(scene)
+        openings = [f for f in truth["features"] if f["properties"]["kind"] == "opening"]
+        self.assertEqual(len(openings), 1)
+        np.testing.assert_allclose(openings[0]["geometry"]["coordinates"], [[13.75, 1.0], [14.65, 1.0]], atol=1e-9)
+        self.assertAlmostEqual(openings[0]["properties"]["width_m"], 0.9)
+        self.assertEqual(openings[0]["properties"]["name"], "corridor_north")
+        self.assertGreater(sum(1 for f in truth["features"] if f["properties"].get("door")), 0)
+
     def test_scene_errors_name_the_field(self):
         base = {"walls": [{"segment": [[0, -1], [4, -1]]}], "trajectory": {"poses": [[1, 0, 0]]}}
         cases = [

@@ -112,6 +112,32 @@ class qa_evaluation(gr_unittest.TestCase):
         self.assertFalse(scores["trajectory"]["pointwise"])
         self.assertAlmostEqual(scores["trajectory"]["rms_m"], 0.2, delta=1e-12)
 
+    def test_open_doorways_scored(self):
+        """Two true open doorways on the face y = -1 (x = 2-3 and 6-7.2); the map has one
+        0.1 m along and 0.05 m off the first (its jambs 0.1 m and 0.1 m off, drawn the other
+        way round), and one at x = 9 where no door is: 1 of 2 found, 1 false, jamb error
+        RMS sqrt(0.1^2 + 0.05^2) m. Within 0.05 m of tolerance the found one is missed; the
+        table names them; a malformed opening is refused by its index."""
+        truth = _truth()
+        truth["features"] += [_feature("LineString", [[2, -1], [3, -1]], kind="opening", confidence=1.0),
+                              _feature("LineString", [[6, -1], [7.2, -1]], kind="opening", confidence=1.0)]
+        ours = _collection([_feature("LineString", [[3.1, -1.05], [2.1, -1.05]], kind="opening", confidence=0.8),
+                            _feature("LineString", [[8.6, -1.0], [9.4, -1.0]], kind="opening", confidence=0.5)])
+        openings = evaluation.score_map(ours, truth)["openings"]
+        self.assertEqual((openings["truth"], openings["map"], openings["found"], openings["unmatched_map"]), (2, 2, 1, 1))
+        self.assertAlmostEqual(openings["fraction"], 0.5)
+        self.assertAlmostEqual(openings["jamb_error_rms_m"], math.hypot(0.1, 0.05), places=9)
+        self.assertEqual(evaluation.score_map(ours, truth, opening_tolerance_m=0.05)["openings"]["found"], 0)
+        self.assertIn("open doorways found within 0.5 m: 1 of 2", evaluation.format_table(evaluation.score_map(ours, truth)))
+        none = evaluation.score_map(_map(), _truth())["openings"]
+        self.assertEqual((none["truth"], none["map"], none["fraction"]), (0, 0, None))
+        self.assertNotIn("open doorways", evaluation.format_table(evaluation.score_map(_map(), _truth())))
+        bad = copy.deepcopy(ours)
+        bad["features"][1]["geometry"]["coordinates"] = [[8.6, -1.0]]
+        with self.assertRaises(evaluation.MapFormatError) as ctx:
+            evaluation.load_map(bad, "map.geojson")
+        self.assertIn("features[1] (kind 'opening').geometry.coordinates", str(ctx.exception))
+
     def test_empty_map(self):
         scores = evaluation.score_map(_collection([]), _truth())
         los = scores["classes"]["line_of_sight"]
