@@ -29,10 +29,13 @@ the chain (docs/mapping.md):
      orientation_lean_deg);
   5. walls JADE does not report, found on the CSI alone: end walls across the track past its
      ends, and side walls across the track from a line-of-sight wall where an echo of the
-     same delay hid them (--no-side-walls; stats: end_walls, side_walls; GeoJSON "source").
+     same delay hid them (--no-side-walls; stats: end_walls, side_walls; GeoJSON "source");
+  6. open doorways, on the CSI: where a line-of-sight wall's echo is missing between
+     stretches that hold it, the wall is drawn with a gap (stats: openings).
 
 outputs:
-  MAP.geojson  FORMATS.md's map: walls (class, confidence), detections, corners, trajectory
+  MAP.geojson  FORMATS.md's map: walls (class, confidence, material), detections, corners,
+               trajectory, and open doorways ("kind": "opening", which thrumapper-eval scores)
   MAP.png      the map with the trajectory and the detections (matplotlib)
   PREFIX.pgm, PREFIX.yaml   a ROS map_server occupancy grid (--ros-resolution m/pixel)
 
