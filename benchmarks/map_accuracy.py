@@ -150,12 +150,23 @@ def summary_rows(name, runs):
     """A row of the medians over the runs, and one of their ranges (max - min)."""
     import numpy as np
 
-    med, spread = {"scene": f"{name}, median", "corners": "–"}, {"scene": f"{name}, range", "corners": "–"}
+    med = {"scene": f"{name}, median", "corners": "–", "doors": "–"}
+    spread = {"scene": f"{name}, range", "corners": "–", "doors": "–"}
     for key in SUMMARISED:
         values = [r[key] for r in runs if r[key] is not None]
         med[key] = float(np.median(values)) if values else None
         spread[key] = float(max(values) - min(values)) if values else None
     return [med, spread]
+
+
+def doorways(openings):
+    """The open doorways column: found / true, the jambs' RMS error, and the map's
+    openings near no true one; "–" where neither map has any."""
+    if not openings or not (openings["truth"] or openings["map"]):
+        return "–"
+    jambs = "" if openings["jamb_error_rms_m"] is None else f" ({openings['jamb_error_rms_m']:.2f})"
+    false = f", {openings['unmatched_map']} false" if openings["unmatched_map"] else ""
+    return f"{openings['found']}/{openings['truth']}{jambs}{false}"
 
 
 def run_scene(name, out, extra, seed=None):
@@ -190,6 +201,7 @@ def run_scene(name, out, extra, seed=None):
         "hidden_cov": c["hidden"]["coverage"],
         "false_frac": scores["false_wall_length_m"] / total_true if total_true else None,
         "corners": f"{scores['corners']['found']}/{scores['corners']['truth']}",
+        "doors": doorways(scores.get("openings")),
         "corner_m": corner, "near_corner_rms": near_rms,
         "traj_rms": (scores["trajectory"] or {}).get("rms_m"),
         "csi_rms": csi_rms, "csi_length": csi_length,
@@ -199,15 +211,16 @@ def run_scene(name, out, extra, seed=None):
 
 def print_table(rows):
     header = ("| scene | LoS RMS fused (raw) m | hidden RMS fused (raw) m | LoS coverage | hidden coverage | "
-              "false wall / true length | corners found | §4.4 corner m (LoS RMS near it) | trajectory RMS m | "
-              "walls found on the CSI: RMS m (length m) | s/pose |")
+              "false wall / true length | corners found | §4.4 corner m (LoS RMS near it) | "
+              "open doorways found (jambs RMS m) | trajectory RMS m | walls found on the CSI: RMS m (length m) | "
+              "s/pose |")
     print(header)
     print("|---" * (header.count("|") - 1) + "|")
     for r in rows:
         print(f"| {r['scene']} | {fmt(r['los_rms'])} ({fmt(r['los_raw_rms'])}) | {fmt(r['hidden_rms'])} "
               f"({fmt(r['hidden_raw_rms'])}) | {fmt(r['los_cov'], 100, 1, ' %')} | {fmt(r['hidden_cov'], 100, 1, ' %')} | "
               f"{fmt(r['false_frac'], 100, 1, ' %')} | {r['corners']} | "
-              f"{fmt(r['corner_m'], digits=2)} ({fmt(r['near_corner_rms'])}) | {fmt(r['traj_rms'])} | "
+              f"{fmt(r['corner_m'], digits=2)} ({fmt(r['near_corner_rms'])}) | {r['doors']} | {fmt(r['traj_rms'])} | "
               f"{fmt(r['csi_rms'])} ({fmt(r['csi_length'], digits=1)}) | {fmt(r['s_per_pose'])} |")
 
 
