@@ -1463,8 +1463,8 @@ class WallFusion:
             # mis-fitted continuation it may be: there the CSI's choice is not the face's,
             # docs/mapping.md "Short pieces put on a side wall's line")
             best = None
-            for side, cos_tol in [(side, cos_side) for side in side_walls]:
-                if float(side["normal"] @ w["normal"]) < cos_tol or \
+            for side in side_walls:
+                if float(side["normal"] @ w["normal"]) < cos_side or \
                         max(abs(float((e - side["centre"]) @ side["normal"])) for e in ends) > self.TWIN_M:
                     continue
                 ts = sorted(float((e - side["centre"]) @ side["direction"]) for e in ends)
@@ -1832,7 +1832,8 @@ class WallFusion:
 
     def _same_oblique_wall(self, behind, front, poses):
         """Whether `behind` lies along `front`'s line (SAME_WALL_M, SAME_WALL_DEG) and both
-        run obliquely to the track (SAME_WALL_OBLIQUE_DEG off the mean heading)."""
+        run obliquely to the track (SAME_WALL_OBLIQUE_DEG off the poses' mean heading: a
+        straight track's direction; on a track that turns, only a rough one)."""
         if abs(float(behind["normal"] @ front["normal"])) < math.cos(math.radians(self.SAME_WALL_DEG)):
             return False
         heading = float(np.arctan2(np.mean(np.sin(poses[:, 2])), np.mean(np.cos(poses[:, 2]))))
