@@ -285,6 +285,42 @@ class qa_wall_fusion(gr_unittest.TestCase):
         behind_along = piece([4.0, 1.35], 2.0, 4.0)
         self.assertEqual(classes(along, behind_along), [LOS, HIDDEN])
 
+    def test_corridor_closed_at_a_wall_across_past_the_track(self):
+        """A track x = 0 .. 10 m; the map's corridor walls (faces y = -1 and +1) start at
+        x = 0 and 0.5 m, and a wall across the corridor at x = -2.9 (from echoes, y = -1.2 ..
+        1.2) lies behind the first pose: both corridor walls are drawn on to it (inferred,
+        line of sight, half the weaker confidence), with a corner where each meets it. Not
+        when the wall across is 4 m past a corridor wall's end (CLOSE_MAX_M 3.5 m), not to a
+        wall across inside the track, and not where a wall already stands on the line."""
+        fusion = WallFusion(RADAR, exact_settings())
+        poses = straight_poses(0.0, 10.0)
+
+        def wall(a, b, normal, confidence=0.8):
+            return MapWall(np.array(a, float), np.array(b, float), np.array(normal, float), "line_of_sight",
+                           confidence, 10, 10, 0.02)
+
+        south = wall([0.0, -1.0], [10.0, -1.0], [0.0, 1.0])
+        north = wall([0.5, 1.0], [10.0, 1.0], [0.0, -1.0], confidence=0.6)
+        across = wall([-2.9, -1.2], [-2.9, 1.2], [1.0, 0.0])
+        added, corners = fusion._corridors_closed_at_walls_across([south, north, across], poses)
+        self.assertEqual(len(added), 2)
+        for w, (y, x0) in zip(sorted(added, key=lambda w: w.start_m[1]), ((-1.0, 0.0), (1.0, 0.5))):
+            self.assertEqual((w.cls, w.source), ("line_of_sight", "inferred"))
+            np.testing.assert_allclose(sorted([w.start_m[0], w.end_m[0]]), [-2.9, x0], atol=1e-9)
+            np.testing.assert_allclose([w.start_m[1], w.end_m[1]], [y, y], atol=1e-9)
+        self.assertAlmostEqual(min(w.confidence for w in added), 0.3)
+        np.testing.assert_allclose(sorted(c.position_m[1] for c in corners), [-1.0, 1.0], atol=1e-9)
+        self.assertTrue(all(c.walls[1] == 2 and c.walls[0] in (3, 4) for c in corners))
+        far = wall([-4.5, -1.2], [-4.5, 1.2], [1.0, 0.0])  # 4.5 m past the south wall's end
+        self.assertEqual(fusion._corridors_closed_at_walls_across([south, far], poses)[0], [])
+        inside = wall([5.0, 1.5], [5.0, 3.0], [-1.0, 0.0])  # across, but within the track
+        self.assertEqual(fusion._corridors_closed_at_walls_across([south, inside], poses)[0], [])
+        standing = wall([-2.8, -0.95], [-0.1, -0.95], [0.0, 1.0])  # already a wall on the south line
+        added, _ = fusion._corridors_closed_at_walls_across([south, standing, across], poses)
+        # the south wall is not drawn on over it; that wall itself is, its last 0.1 m
+        self.assertEqual(len(added), 1, added)
+        np.testing.assert_allclose([added[0].start_m, added[0].end_m], [[-2.8, -0.95], [-2.9, -0.95]], atol=1e-9)
+
     def test_wall_clipped_where_it_runs_through_another(self):
         """A corridor's north wall (face y = 1, x = -3 .. 10, its normal toward the robot) and
         an end wall at x = -2.9 mapped from echoes from y = -1 to 1.6, 0.6 m past the north

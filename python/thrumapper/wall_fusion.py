@@ -2974,6 +2974,9 @@ class WallFusion:
         closing, room_corners = self._rooms_closed_at_end_walls(walls, end_walls, walls_in)
         walls.extend(closing)
         corners.extend(room_corners)
+        closed, closing_corners = self._corridors_closed_at_walls_across(walls, poses)
+        walls.extend(closed)
+        corners.extend(closing_corners)
         self._cut_at_openings(walls, corners, openings)
         for cls in CLASSES:
             detections[cls] = np.array(detections[cls]).reshape(-1, 2)
@@ -2985,6 +2988,7 @@ class WallFusion:
                       "corner_echoes": int(np.count_nonzero(labels == CORNER)),
                       "unassigned_echoes": int(np.count_nonzero((labels == UNASSIGNED) & ~ghosts)),
                       "end_walls": len(end_walls), "side_walls": len(side_walls), "openings": len(openings),
+                      "corridor_walls_closed": len(closed),
                       "detections_in_openings": in_openings, "walls_clipped_at_crossings": len(clipped),
                       "detections_beyond_wall_ends": beyond_ends,
                       "walls_absorbed_by_side_walls": len(absorbed), "inferred_walls": sum(1 for w in walls if w.inferred),
@@ -3299,6 +3303,76 @@ class WallFusion:
                 if hi > reach:
                     reach, last = hi, w
         return bridges
+
+    #: a line-of-sight wall along the track is drawn on to a line-of-sight wall across the
+    #: track past the track's end when its end is at most CLOSE_MAX_M short of it and the
+    #: meeting point within CLOSE_ACROSS_MARGIN_M of the wall across's extent
+    #: (_corridors_closed_at_walls_across)
+    CLOSE_MAX_M = 3.5
+    CLOSE_ACROSS_MARGIN_M = 0.5
+    #: ...a wall across of at least this confidence (a short spurious piece across, 0.43 on
+    #: qa_wall_refinement's brick-wall corridor, does not close a corridor; the office's
+    #: west end wall pieces: 0.57-0.92)
+    CLOSE_MIN_CONFIDENCE = 0.5
+
+    def _corridors_closed_at_walls_across(self, walls, poses):
+        """Corridor walls drawn on to the wall across the corridor past the track's ends
+        (MapWalls: the map's walls, as drawn). At each end of the track, a line-of-sight wall
+        across it (within 30 deg of facing the track's direction there, of CLOSE_MIN_CONFIDENCE
+        at least) lying beyond the end pose closes the corridor: each line-of-sight wall along the track (within 15 deg)
+        that stops short of it, its end at most CLOSE_MAX_M from where its line meets the wall
+        across and that point within CLOSE_ACROSS_MARGIN_M of the wall across's extent, with
+        no line-of-sight wall on its line there already, goes on to that point: an
+        "inferred" wall (half the weaker one's confidence) and a line-of-sight corner there.
+        The end walls found on the CSI close the corridor at their corners (_assemble); a wall
+        across mapped from echoes did not (office_floor seed 1, office_floor_drift seed 2:
+        the north corridor wall stopped 2.2-2.5 m short of the west end wall's piece). The
+        robot did not drive there, and no echo shows the stretch: the corridor walls are taken
+        to go on, as the classes take them (docs/mapping.md). Returns (walls, corners); the
+        corners index `walls` as it stands plus the walls returned."""
+        if len(poses) < 2:
+            return [], []
+        los = [i for i, w in enumerate(walls) if w.cls == CLASSES[LOS] and w.length_m > 0]
+        cos_across, sin_along = math.cos(math.radians(30.0)), math.sin(math.radians(15.0))
+        added, corners = [], []
+        for end, sign in ((len(poses) - 1, 1.0), (0, -1.0)):
+            pose = poses[end]
+            u = sign * np.array([math.cos(pose[2]), math.sin(pose[2])])  # outward along the track
+            origin = bistatic.robot_to_world(self.robot_c, pose)
+            for a in los:
+                wa = walls[a]
+                if abs(float(wa.normal @ u)) < cos_across or float((0.5 * (wa.start_m + wa.end_m) - origin) @ u) <= 0 \
+                        or wa.confidence < self.CLOSE_MIN_CONFIDENCE:
+                    continue
+                ea = (wa.end_m - wa.start_m) / wa.length_m
+                for b in los:
+                    wb = walls[b]
+                    if b == a or abs(float(wb.normal @ u)) > sin_along:
+                        continue
+                    eb = (wb.end_m - wb.start_m) / wb.length_m
+                    tip = max((wb.start_m, wb.end_m), key=lambda q: float(q @ u))  # its end toward the wall across
+                    denom = float(eb @ wa.normal)
+                    if abs(denom) < 1e-6:
+                        continue
+                    meet = tip + eb * (float((wa.start_m - tip) @ wa.normal) / denom)  # on both lines
+                    gap = float((meet - tip) @ u)
+                    along_a = float((meet - wa.start_m) @ ea)
+                    if not (0.05 < gap <= self.CLOSE_MAX_M) or \
+                            not (-self.CLOSE_ACROSS_MARGIN_M <= along_a <= wa.length_m + self.CLOSE_ACROSS_MARGIN_M):
+                        continue
+                    # not where a line-of-sight wall already stands on this line
+                    mid = 0.5 * (tip + meet)
+                    if any(i != b and abs(float((mid - walls[i].start_m) @ walls[i].normal)) < 0.3
+                           and abs(float(walls[i].normal @ wb.normal)) > cos_across
+                           and min(walls[i].start_m @ u, walls[i].end_m @ u) < mid @ u < max(walls[i].start_m @ u, walls[i].end_m @ u)
+                           for i in los):
+                        continue
+                    confidence = 0.5 * min(wa.confidence, wb.confidence)
+                    added.append(MapWall(tip.copy(), meet.copy(), wb.normal.copy(), CLASSES[LOS], confidence, 0, 0, 0.0,
+                                         source="inferred"))
+                    corners.append(MapCorner(meet.copy(), confidence, CLASSES[LOS], 0,
+                                             (len(walls) + len(added) - 1, a)))
+        return added, corners
 
     def _rooms_closed_at_end_walls(self, walls, end_walls, walls_in):
         """Inferred walls where a room behind a side wall closes at the corridor's end wall:
