@@ -3309,7 +3309,7 @@ class WallFusion:
     #: meeting point within CLOSE_ACROSS_MARGIN_M of the wall across's extent
     #: (_corridors_closed_at_walls_across)
     CLOSE_MAX_M = 3.5
-    CLOSE_ACROSS_MARGIN_M = 0.5
+    CLOSE_ACROSS_MARGIN_M = 1.0
     #: ...a wall across of at least this confidence (a short spurious piece across, 0.43 on
     #: qa_wall_refinement's brick-wall corridor, does not close a corridor; the office's
     #: west end wall pieces: 0.57-0.92)
