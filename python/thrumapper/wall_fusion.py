@@ -1450,8 +1450,6 @@ class WallFusion:
             return {}
         walls, group = state["walls"], state["group"]
         cos_side = math.cos(math.radians(self.LINE_ANGLE_DEG))
-        paths = [[(q["aoa_rad"], q["delay_s"]) for q in g.paths] for g in self.groups]
-        hidden = [c == HIDDEN for c in wall_cls] + [False] * len(side_walls)
         seen_from = [np.unique(group[w["members"]]) for w in walls]
         moved = {}
         for k, w in enumerate(walls):
@@ -1476,7 +1474,7 @@ class WallFusion:
             _, side, ts = best
             line = {"centre": side["centre"], "normal": side["normal"], "direction": side["direction"],
                     "t0": ts[0], "t1": ts[1]}
-            self.refiner.set_map(list(walls) + list(side_walls) + [line], poses, paths, hidden + [False])
+            self._refiner_map(state, poses, wall_cls, list(side_walls) + [line])
             n = len(walls) + len(side_walls)
             shared = [int(g) for g in poses_k if int(g) in self.refiner.poses and int(g) < len(poses)
                       and self.refiner.sees(int(g), k) and self.refiner.sees(int(g), n)]
@@ -1795,13 +1793,16 @@ class WallFusion:
             line_of = {}
             for n_line, members in enumerate(self._collinear_groups(walls)):
                 line_of.update({j: n_line for j in members})
+            headings = state["poses"][:, 2]  # the track's direction, for _same_oblique_wall
+            heading = math.atan2(float(np.mean(np.sin(headings))), float(np.mean(np.cos(headings))))
+            track = np.array([math.cos(heading), math.sin(heading)])
             checked = set()  # extensions held against the CSI in this call
             first_classes = list(wall_cls)
             for j, k in enumerate(los):
                 members = state["walls"][k]["members"]
                 legs = self._legs_from(state["poses"], state["group"][members])
                 own_line = [i for i in range(len(los)) if line_of[i] == line_of[j]
-                            or self._same_oblique_wall(walls[j], walls[i], state["poses"])]
+                            or self._same_oblique_wall(walls[j], walls[i], track)]
                 hit = self._legs_cross(*legs, state["pw"][members], a, b)
                 hit[:, own_line] = False
                 behind = np.any(hit, axis=1)
@@ -1830,14 +1831,13 @@ class WallFusion:
     SAME_WALL_DEG = 10.0
     SAME_WALL_OBLIQUE_DEG = 5.0
 
-    def _same_oblique_wall(self, behind, front, poses):
+    def _same_oblique_wall(self, behind, front, track):
         """Whether `behind` lies along `front`'s line (SAME_WALL_M, SAME_WALL_DEG) and both
-        run obliquely to the track (SAME_WALL_OBLIQUE_DEG off the poses' mean heading: a
-        straight track's direction; on a track that turns, only a rough one)."""
+        run obliquely to the track (SAME_WALL_OBLIQUE_DEG off `track`, a unit vector: the
+        poses' mean heading, a straight track's direction; on a track that turns, only a
+        rough one)."""
         if abs(float(behind["normal"] @ front["normal"])) < math.cos(math.radians(self.SAME_WALL_DEG)):
             return False
-        heading = float(np.arctan2(np.mean(np.sin(poses[:, 2])), np.mean(np.cos(poses[:, 2]))))
-        track = np.array([math.cos(heading), math.sin(heading)])
         sin_oblique = math.sin(math.radians(self.SAME_WALL_OBLIQUE_DEG))
         if min(abs(float(w["normal"] @ track)) for w in (behind, front)) < sin_oblique:
             return False
@@ -3349,12 +3349,8 @@ class WallFusion:
                     wb = walls[b]
                     if b == a or abs(float(wb.normal @ u)) > sin_along:
                         continue
-                    eb = (wb.end_m - wb.start_m) / wb.length_m
                     tip = max((wb.start_m, wb.end_m), key=lambda q: float(q @ u))  # its end toward the wall across
-                    denom = float(eb @ wa.normal)
-                    if abs(denom) < 1e-6:
-                        continue
-                    meet = tip + eb * (float((wa.start_m - tip) @ wa.normal) / denom)  # on both lines
+                    meet = bistatic.lines_meet(wa.start_m, wa.normal, tip, wb.normal)  # (45 deg apart at least)
                     gap = float((meet - tip) @ u)
                     along_a = float((meet - wa.start_m) @ ea)
                     if not (0.05 < gap <= self.CLOSE_MAX_M) or \
