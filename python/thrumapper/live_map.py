@@ -105,13 +105,17 @@ def map_from_pmt(msg):
                     corners.append((p, pmt.to_double(conf) if conf is not None and pmt.is_number(conf) else 1.0))
     openings = []  # open doorways: (start (2,), end (2,)); a message without them has none
     vec = _get(msg, "openings")
-    if vec is not None and pmt.is_vector(vec):
+    if vec is not None:  # checked as the walls are: wall_fusion writes them, a bad one is an error
+        if not pmt.is_vector(vec):
+            raise LiveMapError("map message: openings is not a vector of dicts")
         for i in range(pmt.length(vec)):
             o = pmt.vector_ref(vec, i)
-            if pmt.is_dict(o) and _get(o, "start") is not None and _get(o, "end") is not None:
-                start, end = _f64(_get(o, "start"), f"openings[{i}].start"), _f64(_get(o, "end"), f"openings[{i}].end")
-                if start.shape == (2,) and end.shape == (2,) and np.all(np.isfinite(np.r_[start, end])):
-                    openings.append((start, end))
+            if not pmt.is_dict(o) or _get(o, "start") is None or _get(o, "end") is None:
+                raise LiveMapError(f"map message: openings[{i}] needs start and end")
+            start, end = _f64(_get(o, "start"), f"openings[{i}].start"), _f64(_get(o, "end"), f"openings[{i}].end")
+            if start.shape != (2,) or end.shape != (2,) or not np.all(np.isfinite(np.r_[start, end])):
+                raise LiveMapError(f"map message: openings[{i}] start/end must be finite [x, y]")
+            openings.append((start, end))
     detections = {}
     det = _get(msg, "detections")
     if det is not None and pmt.is_dict(det):

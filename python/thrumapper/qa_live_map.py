@@ -167,6 +167,11 @@ class qa_live_map(gr_unittest.TestCase):
         self.assertEqual(len(parsed["openings"]), 1)
         self.assertAlmostEqual(float(np.hypot(*(parsed["openings"][0][1] - parsed["openings"][0][0]))), 0.9)
         self.assertEqual(map_from_pmt(pmt.make_dict())["openings"], [])  # a message without them
+        bad_opening = pmt.make_vector(1, pmt.PMT_NIL)
+        o = pmt.dict_add(pmt.make_dict(), pmt.intern("start"), f64([0.0, float("nan")]))
+        pmt.vector_set(bad_opening, 0, pmt.dict_add(o, pmt.intern("end"), f64([1.0, 0.0])))
+        with self.assertRaisesRegex(LiveMapError, r"openings\[0\]"):
+            map_from_pmt(pmt.dict_add(pmt.make_dict(), pmt.intern("openings"), bad_opening))
         with self.assertRaises(ValueError):
             live_map(update_period_s=0)
 
