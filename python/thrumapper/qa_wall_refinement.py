@@ -741,6 +741,57 @@ class qa_wall_refinement(gr_unittest.TestCase):
         self.assertEqual(closed.openings, [])
         self.assertTrue(corridor_cover(closed, 2.5), closed.walls)
 
+    def test_room_behind_an_open_door_in_sight_up_to_its_partitions(self):
+        """The corridor above with its open door at x = 2.05-2.95 m in a room between
+        plasterboard partitions at x = 0 and 5 m, its brick back wall's face at y = -3.0 m.
+        The truth maps the back wall in sight over x = 0-5 m (through the door) and hidden
+        beyond the partitions. The map finds the door, draws the back wall behind it in
+        sight from the door to the east partition (within 0.3 m; the back wall's echoes start
+        at x = 1.3 m), hidden past it, and scores its detections by class within 0.1 m of the
+        true face (a detection of the wrong class would lie 2 m or more from the nearest
+        true wall of its class). Without the step the back wall is all hidden; without the
+        partition's dip in the back wall's echo, the view runs on past the partition."""
+        data = straight_survey_data(
+            [{"name": "corridor", "segment": [[-2.0, -1.075], [10.0, -1.075]], "material": "plasterboard"},
+             {"name": "back", "segment": [[-2.0, -3.1], [10.0, -3.1]], "material": "brick"},
+             {"name": "west", "segment": [[0.0, -1.15], [0.0, -3.025]], "material": "plasterboard"},
+             {"name": "east", "segment": [[5.0, -1.15], [5.0, -3.025]], "material": "plasterboard"},
+             {"name": "north", "segment": [[-2.0, 2.075], [10.0, 2.075]], "material": "plasterboard"}], 8.0, 0.2)
+        data["doors"] = [{"wall": "corridor", "position_m": 4.5, "width_m": 0.9}]
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+        truth = building_sim.truth_geojson(sc)
+        back_truth = {f["properties"]["class"]: sorted(p[0] for p in f["geometry"]["coordinates"])
+                      for f in truth["features"] if f["properties"]["kind"] == "wall"
+                      and f["geometry"]["coordinates"][0][1] < -2.5 and f["geometry"]["coordinates"][1][1] < -2.5
+                      and max(p[0] for p in f["geometry"]["coordinates"]) > 1.0}
+        self.assertEqual(back_truth["line_of_sight"], [0.0, 5.0])  # the scene is as described
+
+        def back_walls(fused, cls):  # [x0, x1] of the map's walls of this class on the back wall's face
+            return [sorted((w.start_m[0], w.end_m[0])) for w in fused.walls
+                    if w.cls == cls and abs(w.start_m[1] + 3.0) < 0.15 and abs(w.end_m[1] + 3.0) < 0.15]
+
+        fused = mapped_with(sc, res)
+        self.assertEqual(len(fused.openings), 1, fused.openings)
+        self.assertEqual(fused.stats["walls_seen_through_openings"], 1)
+        seen = back_walls(fused, "line_of_sight")
+        self.assertEqual(len(seen), 1, seen)
+        self.assertLess(seen[0][0], 2.05)  # from the door's west jamb or before...
+        self.assertLess(abs(seen[0][1] - 5.0), 0.3, seen)  # ...to the east partition
+        self.assertTrue(any(x0 < 6.5 < x1 for x0, x1 in back_walls(fused, "hidden")), fused.walls)
+        on_back = {c: d[d[:, 1] < -2.5] for c, d in fused.detections.items()}
+        self.assertTrue(np.all((on_back["line_of_sight"][:, 0] > -0.3) & (on_back["line_of_sight"][:, 0] < 5.3)), on_back)
+        self.assertFalse(np.any((on_back["hidden"][:, 0] > 0.3) & (on_back["hidden"][:, 0] < 4.7)), on_back)
+        report = evaluation.score_map(evaluation.load_map(fused.to_geojson()), evaluation.load_map(truth))
+        for cls in ("line_of_sight", "hidden"):
+            self.assertLess(report["classes"][cls]["detections"]["rms_m"], 0.1, (cls, report["classes"][cls]))
+
+        unseen = mapped_with(sc, res, VISIBLE_MIN_M=1e9)
+        self.assertEqual(back_walls(unseen, "line_of_sight"), [])
+        self.assertTrue(any(x0 < 2.5 < x1 for x0, x1 in back_walls(unseen, "hidden")), unseen.walls)
+        no_dips = mapped_with(sc, res, PARTITION_GAIN_RATIO=0.0)
+        self.assertGreater(max(x1 for _, x1 in back_walls(no_dips, "line_of_sight")), 5.5, no_dips.walls)
+
     def test_skewed_side_wall_found_where_jade_reports_one(self):
         """skewed_walls' first 6 m: the plasterboard walls skewed 18° to the left and 12° to the
         right of the track are 30° apart, and where their echoes come within a fraction of a

@@ -2779,11 +2779,12 @@ class WallFusion:
                               "orientation_lean_deg": math.degrees(float(lean))}
         return ps
 
-    def _collinear_groups(self, walls):
+    def _collinear_groups(self, walls, tolerance_m=None):
         """Groups (lists of indices) of walls on one straight line: orientations within
-        LINE_ANGLE_DEG, each end of the nearer piece within line_tolerance_m of the other's
-        line, and at most LINE_GAP_M apart along it (a door, a stretch without echoes)."""
-        s = self.settings
+        LINE_ANGLE_DEG, each end of the nearer piece within tolerance_m (line_tolerance_m
+        when None) of the other's line, and at most LINE_GAP_M apart along it (a door, a
+        stretch without echoes)."""
+        tolerance_m = self.settings.line_tolerance_m if tolerance_m is None else tolerance_m
         parent = list(range(len(walls)))
 
         def root(i):
@@ -2805,8 +2806,8 @@ class WallFusion:
                 if gap > self.LINE_GAP_M:
                     continue
                 # the facing ends, each against the other piece's line
-                if abs((pb - wa["centre"]) @ wa["normal"]) > s.line_tolerance_m or \
-                        abs((pa - wb["centre"]) @ wb["normal"]) > s.line_tolerance_m:
+                if abs((pb - wa["centre"]) @ wa["normal"]) > tolerance_m or \
+                        abs((pa - wb["centre"]) @ wb["normal"]) > tolerance_m:
                     continue
                 parent[root(a)] = root(b)
         groups = {}
@@ -2978,6 +2979,8 @@ class WallFusion:
         walls.extend(closed)
         corners.extend(closing_corners)
         self._cut_at_openings(walls, corners, openings)
+        dips = self._timed("partition dips", self._partition_dips, state, poses, wall_cls) if openings else []
+        seen_through = self._seen_through_doorways(walls, corners, detections, echoes, openings, poses, dips)
         for cls in CLASSES:
             detections[cls] = np.array(detections[cls]).reshape(-1, 2)
             echoes[cls] = np.array(echoes[cls]).reshape(-1, 2)
@@ -2988,7 +2991,7 @@ class WallFusion:
                       "corner_echoes": int(np.count_nonzero(labels == CORNER)),
                       "unassigned_echoes": int(np.count_nonzero((labels == UNASSIGNED) & ~ghosts)),
                       "end_walls": len(end_walls), "side_walls": len(side_walls), "openings": len(openings),
-                      "corridor_walls_closed": len(closed),
+                      "corridor_walls_closed": len(closed), "walls_seen_through_openings": seen_through,
                       "detections_in_openings": in_openings, "walls_clipped_at_crossings": len(clipped),
                       "detections_beyond_wall_ends": beyond_ends,
                       "walls_absorbed_by_side_walls": len(absorbed), "inferred_walls": sum(1 for w in walls if w.inferred),
@@ -3122,6 +3125,11 @@ class WallFusion:
     #: near its orientation
     OPENING_CUT_M = 0.15
     OPENING_CUT_DEG = 10.0
+    #: the pieces of one line, for the openings, meet within this of each other's line
+    #: (_collinear_groups): a door between a side wall and a piece mapped from echoes 0.2 m
+    #: off its line (office_floor seed 3: a piece 5 cm in front of the face, a side wall
+    #: tilted 0.7 deg to 0.16 m behind it at the door) lies on one line
+    OPENING_LINE_TOLERANCE_M = 0.25
 
     def _openings(self, state, poses, wall_cls, side_walls=()):
         """Open doorways in the line-of-sight walls, found on the CSI ([MapOpening]).
@@ -3142,7 +3150,7 @@ class WallFusion:
         # the side walls (a door may lie where a side wall meets a piece mapped from echoes)
         items = [walls_in[k] for k in los_in] + list(side_walls)
         lines = []  # (line dict, pieces left in for its gain, [(t0, t1) of its members along it])
-        for members in self._collinear_groups(items):
+        for members in self._collinear_groups(items, self.OPENING_LINE_TOLERANCE_M):
             pieces = tuple(los_in[i] for i in members if i < len(los_in))
             line = items[max(members, key=lambda i: items[i]["t1"] - items[i]["t0"])]
             spans = []
@@ -3235,6 +3243,191 @@ class WallFusion:
                     for c in corners:
                         if i in c.walls and np.hypot(*(c.position_m - made[1].start_m)) < np.hypot(*(c.position_m - made[0].end_m)):
                             c.walls = tuple(len(walls) - 1 if n == i else n for n in c.walls)
+
+    #: partitions behind a wall: a pose whose specular point on a hidden line finds less
+    #: than PARTITION_GAIN_RATIO of the line's median echo gain within OPENING_REFERENCE_M
+    #: (_partition_dips)
+    PARTITION_GAIN_RATIO = 0.3
+    #: ...looked for on the line's mapped pieces and this far past their outer ends
+    PARTITION_BEYOND_M = 0.5
+
+    def _partition_dips(self, state, poses, wall_cls):
+        """[(line dict, (n, 2) world points)]: on each line of hidden walls (_collinear_groups),
+        the specular points where its echo all but vanishes. A partition meeting a room's back
+        wall is crossed by one leg of the echo from its specular points within a quarter of
+        the baseline of it, along its length (with the corridor wall, two walls): the echo
+        drops there, over one to three poses. So does it at the interference of two echoes,
+        now and then: a dip bounds a view (_seen_through_doorways), where one too many errs
+        toward the wall's own class."""
+        walls_in = state["walls"]
+        hidden = [k for k, c in enumerate(wall_cls) if c == HIDDEN]
+        out = []
+        for members in self._collinear_groups([walls_in[k] for k in hidden]):
+            pieces = tuple(hidden[i] for i in members)
+            line = walls_in[max(pieces, key=lambda k: walls_in[k]["t1"] - walls_in[k]["t0"])]
+            # where its pieces lie (off them, the line is another wall's, or none)
+            ts = [float((walls_in[k]["centre"] + walls_in[k][end] * walls_in[k]["direction"] - line["centre"])
+                        @ line["direction"]) for k in pieces for end in ("t0", "t1")]
+            hull = (min(ts) - self.PARTITION_BEYOND_M, max(ts) + self.PARTITION_BEYOND_M)
+            profile = []
+            for t, g in sorted(self._specular_along(line, poses)):
+                v = self._line_gain(g, line, pieces, poses) if hull[0] <= t <= hull[1] else None
+                if v is not None and math.isfinite(v):
+                    profile.append((t, v))
+            if len(profile) < 5:
+                continue
+            t = np.array([q[0] for q in profile])
+            gain = np.array([q[1] for q in profile])
+            dips = []
+            for i in range(t.size):
+                near = gain[np.abs(t - t[i]) <= self.OPENING_REFERENCE_M]
+                if near.size >= 5 and gain[i] < self.PARTITION_GAIN_RATIO * float(np.median(near)):
+                    dips.append(line["centre"] + t[i] * line["direction"])
+            out.append((line, np.array(dips).reshape(-1, 2)))
+        return out
+
+    #: a hidden wall's stretch seen from some pose through an open doorway, with no mapped
+    #: wall between, is line of sight (_seen_through_doorways): sampled every
+    #: VISIBLE_SAMPLE_M along it, the pose within the fusion's max_range_m and at most
+    #: VISIBLE_MAX_INCIDENCE_DEG off the wall's normal; stretches shorter than
+    #: VISIBLE_MIN_M keep the wall's class
+    VISIBLE_SAMPLE_M = 0.1
+    VISIBLE_MAX_INCIDENCE_DEG = 75.0
+    VISIBLE_MIN_M = 0.3
+    VISIBLE_BEYOND_DOOR_M = 4.0
+
+    def _seen_through_doorways(self, walls, corners, detections, echoes, openings, poses, dips=()):
+        """Hidden walls cut into the stretches a pose sees through an open doorway (class
+        line of sight) and the rest (in place: the first piece keeps the wall's index, which
+        the corners use; the others go to the end of the list, and the corners nearer them
+        follow). A room's back wall behind an open door is mapped from echoes that crossed
+        the corridor wall beside the door (their specular path), yet the robot sees it, in
+        part, through the door: the class says whether a wall is in sight, as the truth maps
+        say it (a wall with no wall between it and some pose). Only an opening the map found
+        makes a wall seen: a corridor wall the map misses is no evidence of a view. The
+        hidden detections and echoes on a stretch seen go to line of sight (on a line-of-sight
+        piece of such a wall too). Returns the number of stretches made line of sight."""
+        if not openings or len(poses) == 0:
+            return 0
+        robots = np.array([bistatic.robot_to_world(self.robot_c, p) for p in poses])
+        cos_limit = math.cos(math.radians(self.VISIBLE_MAX_INCIDENCE_DEG))
+        cos_facing = math.cos(math.radians(30.0))
+        seen_pieces = 0
+        for i in range(len(walls)):
+            w = walls[i]
+            length = w.length_m
+            # (a line-of-sight piece of a wall split by its echoes' classes, _class_pieces,
+            # may hold hidden detections of the poses beside it: they are moved, the piece kept)
+            in_sight = w.cls == CLASSES[LOS]
+            if (in_sight and w.source != "echoes") or length < self.VISIBLE_MIN_M:
+                continue
+            e = (w.end_m - w.start_m) / length
+            count = max(1, int(math.ceil(length / self.VISIBLE_SAMPLE_M)))
+            along = (np.arange(count) + 0.5) * (length / count)
+            points = w.start_m + along[:, None] * e  # (Q, 2)
+            # the room behind a door: a wall facing it across the room, within
+            # VISIBLE_BEYOND_DOOR_M of the door's span along it. The partitions between rooms are
+            # seldom mapped (they run along the echoes' rays): a view through the door further
+            # along the wall would go through one more often than not
+            near_door = np.zeros(count, bool)
+            doors = []
+            for o in openings:
+                if float(o.normal @ w.normal) < cos_facing:
+                    continue
+                d = (o.end_m - o.start_m) / max(o.width_m, 1e-12)
+                s = (points - o.start_m) @ d
+                here = (s >= -self.VISIBLE_BEYOND_DOOR_M) & (s <= o.width_m + self.VISIBLE_BEYOND_DOOR_M)
+                if here.any():
+                    near_door |= here
+                    doors.append((o.start_m, o.end_m))
+            if not doors:
+                continue
+            # ...and not past a partition's dip on its line, on either side of the door
+            for line, found in dips:
+                if abs(float(line["normal"] @ w.normal)) < math.cos(math.radians(self.OPENING_CUT_DEG)) or \
+                        abs(float((0.5 * (w.start_m + w.end_m) - line["centre"]) @ line["normal"])) > 0.3:
+                    continue
+                for o in openings:
+                    if float(o.normal @ w.normal) < cos_facing:
+                        continue
+                    mid = float((0.5 * (o.start_m + o.end_m) - w.start_m) @ e)
+                    half = 0.5 * o.width_m
+                    for q in found:
+                        tq = float((q - w.start_m) @ e)
+                        if tq > mid + half:
+                            near_door &= ~(along > tq)
+                        elif tq < mid - half:
+                            near_door &= ~(along < tq)
+            rel = robots[None, :, :] - points[:, None, :]  # (Q, P, 2)
+            distance = np.hypot(rel[..., 0], rel[..., 1])
+            cos_in = (rel @ w.normal) / np.maximum(distance, 1e-12)
+            candidates = (distance <= self.settings.max_range_m) & (cos_in >= cos_limit)
+            if not candidates.any():
+                continue
+            q, p = np.nonzero(candidates)
+            b = robots[p]
+            a = points[q] + 0.02 * (b - points[q])  # stopped short of the wall's own face
+            through = np.zeros(q.size, bool)
+            for d0, d1 in doors:
+                through |= bistatic.segments_cross(a, b, d0, d1)
+            blocked = np.zeros(q.size, bool)
+            for j, other in enumerate(walls):
+                if j != i and other.length_m > 0:
+                    blocked |= bistatic.segments_cross(a, b, other.start_m, other.end_m)
+            view = np.zeros(count, bool)
+            view[q[through & ~blocked]] = True
+            view &= near_door
+            if not view.any():
+                continue
+            # runs of samples seen; shorter than VISIBLE_MIN_M they are not a stretch
+            edges = np.flatnonzero(np.diff(view.astype(int)) != 0) + 1
+            runs = [(r[0], r[-1] + 1, bool(view[r[0]])) for r in np.split(np.arange(count), edges)]
+            step = length / count
+            runs = [(s0, s1, v and (s1 - s0) * step >= self.VISIBLE_MIN_M) for s0, s1, v in runs]
+            merged = []
+            for s0, s1, v in runs:
+                if merged and merged[-1][2] == v:
+                    merged[-1][1] = s1
+                else:
+                    merged.append([s0, s1, v])
+            if not any(v for _, _, v in merged):
+                continue
+            if in_sight:
+                for s0, s1, v in merged:
+                    if v:
+                        for points_by_class in (detections, echoes):
+                            self._move_to_sight(points_by_class, w, s0 * step, s1 * step, e)
+                continue
+            made = []
+            for s0, s1, v in merged:
+                t0, t1 = s0 * step, s1 * step
+                made.append(dataclasses.replace(w, start_m=w.start_m + t0 * e, end_m=w.start_m + t1 * e,
+                                                cls=CLASSES[LOS] if v else w.cls))
+                if v:  # (the points past the wall's ends go with the piece at that end)
+                    seen_pieces += 1
+                    for points_by_class in (detections, echoes):
+                        margin = self.DETECTION_BEYOND_END_M
+                        self._move_to_sight(points_by_class, w, t0 - margin if s0 == 0 else t0,
+                                            t1 + margin if s1 == count else t1, e)
+            walls[i] = made[0]
+            for piece in made[1:]:
+                walls.append(piece)
+                for c in corners:
+                    if i in c.walls and np.hypot(*(c.position_m - 0.5 * (piece.start_m + piece.end_m))) < \
+                            np.hypot(*(c.position_m - 0.5 * (walls[i].start_m + walls[i].end_m))):
+                        c.walls = tuple(len(walls) - 1 if n == i else n for n in c.walls)
+        return seen_pieces
+
+    def _move_to_sight(self, points_by_class, wall, t0, t1, e):
+        """The hidden points (lists of (2,) in points_by_class) on wall's stretch [t0, t1]
+        (within line_tolerance_m of its line) moved to line of sight."""
+        stay, moved = [], []
+        for point in points_by_class[CLASSES[HIDDEN]]:
+            t = float((point - wall.start_m) @ e)
+            off = abs(float((point - wall.start_m) @ wall.normal))
+            (moved if t0 <= t <= t1 and off <= self.settings.line_tolerance_m else stay).append(point)
+        points_by_class[CLASSES[HIDDEN]] = stay
+        points_by_class[CLASSES[LOS]].extend(moved)
 
     def _seen_through_opening(self, g, point, lines, poses, along=None):
         """Whether pose g sees `point` (world) with no line-of-sight wall between: every line
