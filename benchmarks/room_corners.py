@@ -15,11 +15,11 @@ For each hidden wall of a map (longer than 2 m), hypotheses A every 2.5 cm along
 out to 2 m past its ends, are scored on each pose's CSI with the map's walls and the direct
 path projected out, the corridor wall crossed twice modelled by its insertion transmission
 (CsiWallRefiner.room_corner_picks). The two faces of a partition are told apart by the side the
-poses are on. Per pose the best hypothesis is kept when it captures SIGNIFICANCE times what
+poses are on. Per pose the best hypothesis is kept when it captures 20 times what
 white noise would; a corner shows as a run of poses whose best hypothesis stays put (a wall's
 residue slides with the robot): at least 4 poses spanning 0.6 m of travel whose picks lie
-within 0.25 m of their median, and whose picks move less than MAX_SLOPE metres per metre of
-travel. Each such run is reported with its distance to the nearest true corner, and the
+within 0.25 m of their median, and whose picks move less than 0.25 m per metre of
+travel (wall_fusion.corner_picks, runs_that_stay: the fusion's partitions use them too). Each such run is reported with its distance to the nearest true corner, and the
 partitions they imply (the corner's line across to the line-of-sight wall in front, runs
 within 0.5 m merged) are added to the map and scored: coverage and false wall length,
 against the map without them.
@@ -30,6 +30,7 @@ Usage: benchmarks/room_corners.py [--scenes office_floor office_floor_drift] [--
 import argparse
 import contextlib
 import copy
+import importlib
 import io
 import os
 import sys
@@ -41,54 +42,23 @@ from gnuradio.thrumapper import bistatic, cli_map, cli_sim, evaluation
 from gnuradio.thrumapper.survey import read_survey
 from gnuradio.thrumapper.wall_fusion import MapWall
 
+wall_fusion = importlib.import_module("gnuradio.thrumapper.wall_fusion")  # (the package's name is the block)
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCENES = os.path.join(HERE, "..", "examples", "scenes")
-SIGNIFICANCE = 20.0
-MAX_SLOPE = 0.25
-STEP_M = 0.025
+STEP_M = wall_fusion.CORNER_STEP_M
 BEYOND_ENDS_M = 2.0
-CLUSTER_M = 0.25
-MIN_POSES = 4
-MIN_TRAVEL_M = 0.6
 MERGE_M = 0.5
 
 
 def corner_picks(refiner, wall, side, groups):
-    """Per pose, the best hypothesis on wall's line (a MapWall) for the partition face looking
-    along side * the wall's direction (CsiWallRefiner.room_corner_picks), kept when it
-    captures SIGNIFICANCE times what white noise would: rows (the arrays' midpoint's place
-    along the wall, hypothesis t, J / noise)."""
+    """wall_fusion.corner_picks along a map's hidden wall (a MapWall), out to BEYOND_ENDS_M
+    past its ends: rows (the arrays' midpoint's place along the wall, hypothesis t, J /
+    noise)."""
     u = (wall.end_m - wall.start_m) / wall.length_m
     line = {"centre": wall.start_m, "normal": wall.normal, "direction": u}
     ts = np.arange(-BEYOND_ENDS_M, wall.length_m + BEYOND_ENDS_M, STEP_M)
-    rows = []
-    for g, t, captured, noise in refiner.room_corner_picks(line, ts, groups, side):
-        if captured > SIGNIFICANCE * noise:
-            middle = bistatic.robot_to_world(0.5 * (refiner.tx_c + refiner.rx_c), refiner.world_poses[g])
-            rows.append((float((middle - wall.start_m) @ u), t, captured / noise))
-    return np.array(rows, float).reshape(-1, 3)
-
-
-def runs_that_stay(rows):
-    """(t, poses, travel, slope, median J / noise) of each run of picks that stays put."""
-    used = np.zeros(len(rows), bool)
-    out = []
-    for i in np.argsort(-rows[:, 2]):
-        if used[i]:
-            continue
-        t = rows[i, 1]
-        for _ in range(3):
-            members = np.flatnonzero(~used & (np.abs(rows[:, 1] - t) <= CLUSTER_M))
-            t = float(np.median(rows[members, 1]))
-        if members.size < MIN_POSES:
-            used[i] = True
-            continue
-        used[members] = True
-        travel = float(np.ptp(rows[members, 0]))
-        slope = float(np.polyfit(rows[members, 0], rows[members, 1], 1)[0]) if travel > 0 else 1.0
-        if travel >= MIN_TRAVEL_M and abs(slope) < MAX_SLOPE:
-            out.append((t, int(members.size), travel, slope, float(np.median(rows[members, 2]))))
-    return out
+    return wall_fusion.corner_picks(refiner, line, ts, groups, side)
 
 
 def with_partitions(fused, corners):
@@ -157,7 +127,7 @@ def main(argv=None):
                     continue
                 u = (wall.end_m - wall.start_m) / wall.length_m
                 for side in (1, -1):
-                    for t, poses, travel, slope, ratio in runs_that_stay(corner_picks(refiner, wall, side, groups)):
+                    for t, poses, travel, slope, ratio in wall_fusion.runs_that_stay(corner_picks(refiner, wall, side, groups)):
                         point = wall.start_m + t * u
                         error = float(np.hypot(*(truth_corners - point).T).min()) if truth_corners.size else float("nan")
                         corners.append((point, wall, ratio))

@@ -119,6 +119,10 @@ class FusionSettings:
     #: with the CSI, search for walls across the track from the line-of-sight walls where
     #: JADE reports none (an echo of the same delay as the mapped wall's; WallFusion._side_walls)
     side_walls: bool = True
+    #: with the CSI, draw the partitions behind the walls: where a hidden wall's echo all but
+    #: vanishes over two poses, or over one where the CSI holds a room's corner there too
+    #: (WallFusion._partitions; docs/mapping.md, "Partitions")
+    partitions: bool = True
     #: estimate with the poses the angle by which the echoes' fitted normals lean in mirror
     #: image on the two sides of the track (the corridor's double bounces), rather than take
     #: it for heading (WallFusion.ORIENTATION_LEAN_SIGMA_DEG; docs/mapping.md, "The echoes' lean")
@@ -572,6 +576,61 @@ def _line_fit(points, weights, normals):
 # ----------------------------------------------------------------------------------------
 # The fusion
 # ----------------------------------------------------------------------------------------
+#: a room's corner on the CSI (CsiWallRefiner.room_corner_picks; docs/mapping.md, "Rooms
+#: from their corners"): hypotheses every CORNER_STEP_M along a hidden wall's line; a pose's
+#: best one kept when it captures CORNER_SIGNIFICANCE times what white noise would; a corner
+#: is a run of at least CORNER_MIN_POSES poses over CORNER_MIN_TRAVEL_M of travel whose picks
+#: stay within CORNER_CLUSTER_M of their median and move less than CORNER_MAX_SLOPE metres per
+#: metre of travel (a wall's residue slides with the robot)
+CORNER_STEP_M = 0.025
+CORNER_SIGNIFICANCE = 20.0
+CORNER_MIN_POSES = 4
+CORNER_MIN_TRAVEL_M = 0.6
+CORNER_CLUSTER_M = 0.25
+CORNER_MAX_SLOPE = 0.25
+
+
+def corner_picks(refiner, line, ts_m, groups, side):
+    """Per pose, the best corner hypothesis on `line` (wall dict: centre, normal toward the
+    robot, direction) for the partition face looking along side * direction, kept when it
+    captures CORNER_SIGNIFICANCE times what white noise would: (n, 3) rows (the arrays'
+    midpoint's place along the line, hypothesis t, J / noise)."""
+    rows = []
+    for g, t, captured, noise in refiner.room_corner_picks(line, ts_m, groups, side):
+        if captured > CORNER_SIGNIFICANCE * noise:
+            middle = bistatic.robot_to_world(0.5 * (refiner.tx_c + refiner.rx_c), refiner.world_poses[g])
+            rows.append((float((middle - line["centre"]) @ line["direction"]), t, captured / noise))
+    return np.array(rows, float).reshape(-1, 3)
+
+
+def runs_that_stay(rows):
+    """(t, poses, travel, slope, median J / noise) of each run of picks (corner_picks' rows)
+    that stays put."""
+    used = np.zeros(len(rows), bool)
+    out = []
+    for i in np.argsort(-rows[:, 2]):
+        if used[i]:
+            continue
+        t = rows[i, 1]
+        for _ in range(3):
+            members = np.flatnonzero(~used & (np.abs(rows[:, 1] - t) <= CORNER_CLUSTER_M))
+            t = float(np.median(rows[members, 1]))
+        if members.size < CORNER_MIN_POSES:
+            used[i] = True
+            continue
+        used[members] = True
+        travel = float(np.ptp(rows[members, 0]))
+        slope = float(np.polyfit(rows[members, 0], rows[members, 1], 1)[0]) if travel > 0 else 1.0
+        if travel >= CORNER_MIN_TRAVEL_M and abs(slope) < CORNER_MAX_SLOPE:
+            out.append((t, int(members.size), travel, slope, float(np.median(rows[members, 2]))))
+    return out
+
+
+def corner_runs(refiner, line, ts_m, groups, side):
+    """The corners on `line` the CSI holds: runs_that_stay of corner_picks."""
+    return runs_that_stay(corner_picks(refiner, line, ts_m, groups, side))
+
+
 @dataclass
 class _PoseGroup:
     pose: np.ndarray
@@ -2979,7 +3038,14 @@ class WallFusion:
         walls.extend(closed)
         corners.extend(closing_corners)
         self._cut_at_openings(walls, corners, openings)
-        dips = self._timed("partition dips", self._partition_dips, state, poses, wall_cls) if openings else []
+        want_dips = openings or (self._fits_on_csi and s.partitions)
+        dips = self._timed("partition dips", self._partition_dips, state, poses, wall_cls) if want_dips else []
+        partitions, partition_corners = [], []
+        if self._fits_on_csi and s.partitions:  # (before the views through doors, which they bound)
+            partitions, partition_corners = self._timed("partitions", self._partitions, walls, dips, poses)
+            corners.extend(MapCorner(c.position_m, c.confidence, c.cls, c.num_poses, (len(walls) + n,))
+                           for n, c in enumerate(partition_corners))
+            walls.extend(partitions)
         seen_through = self._seen_through_doorways(walls, corners, detections, echoes, openings, poses, dips)
         for cls in CLASSES:
             detections[cls] = np.array(detections[cls]).reshape(-1, 2)
@@ -2991,7 +3057,7 @@ class WallFusion:
                       "corner_echoes": int(np.count_nonzero(labels == CORNER)),
                       "unassigned_echoes": int(np.count_nonzero((labels == UNASSIGNED) & ~ghosts)),
                       "end_walls": len(end_walls), "side_walls": len(side_walls), "openings": len(openings),
-                      "corridor_walls_closed": len(closed), "walls_seen_through_openings": seen_through,
+                      "corridor_walls_closed": len(closed), "partitions": len(partitions), "walls_seen_through_openings": seen_through,
                       "detections_in_openings": in_openings, "walls_clipped_at_crossings": len(clipped),
                       "detections_beyond_wall_ends": beyond_ends,
                       "walls_absorbed_by_side_walls": len(absorbed), "inferred_walls": sum(1 for w in walls if w.inferred),
@@ -3252,7 +3318,7 @@ class WallFusion:
     PARTITION_BEYOND_M = 0.5
 
     def _partition_dips(self, state, poses, wall_cls):
-        """[(line dict, (n, 2) world points)]: on each line of hidden walls (_collinear_groups),
+        """[(line dict, (n, 2) world points, (n,) ratios)]: on each line of hidden walls (_collinear_groups),
         the specular points where its echo all but vanishes. A partition meeting a room's back
         wall is crossed by one leg of the echo from its specular points within a quarter of
         the baseline of it, along its length (with the corridor wall, two walls): the echo
@@ -3261,6 +3327,9 @@ class WallFusion:
         toward the wall's own class."""
         walls_in = state["walls"]
         hidden = [k for k, c in enumerate(wall_cls) if c == HIDDEN]
+        if not hidden:
+            return []
+        self._refiner_map(state, poses, wall_cls)  # (as the openings have it)
         out = []
         for members in self._collinear_groups([walls_in[k] for k in hidden]):
             pieces = tuple(hidden[i] for i in members)
@@ -3282,9 +3351,97 @@ class WallFusion:
             for i in range(t.size):
                 near = gain[np.abs(t - t[i]) <= self.OPENING_REFERENCE_M]
                 if near.size >= 5 and gain[i] < self.PARTITION_GAIN_RATIO * float(np.median(near)):
-                    dips.append(line["centre"] + t[i] * line["direction"])
-            out.append((line, np.array(dips).reshape(-1, 2)))
+                    dips.append((line["centre"] + t[i] * line["direction"], gain[i] / float(np.median(near))))
+            out.append((line, np.array([q for q, _ in dips]).reshape(-1, 2), np.array([r for _, r in dips])))
         return out
+
+    #: partitions (_partitions): dips within PARTITION_MERGE_M of each other along a line are
+    #: one; PARTITION_MIN_DIPS poses make a partition, fewer need a room's corner on the CSI
+    #: within PARTITION_CORNER_M of it (a run of picks, corner_runs, scanned over
+    #: PARTITION_CORNER_WINDOW_M either side by the poses within PARTITION_CORNER_POSES_M)
+    PARTITION_MERGE_M = 0.25
+    PARTITION_MIN_DIPS = 2
+    PARTITION_CORNER_M = 0.4
+    PARTITION_CORNER_WINDOW_M = 1.0
+    PARTITION_CORNER_POSES_M = 3.0
+    PARTITION_CORNER_STEP_M = 0.05  # (its hypotheses: at CORNER_STEP_M's 2.5 cm, twice the time, no better)
+    #: ...drawn from the hidden wall's line to this far behind the face of the line-of-sight
+    #: wall in front of it (its thickness is not measured: a plasterboard wall's)
+    PARTITION_BEHIND_FACE_M = 0.15
+
+    def _partitions(self, walls, dips, poses):
+        """Partitions between the rooms behind a wall ([MapWall], [MapCorner]): from each dip
+        (_partition_dips) of a hidden line, a hidden wall along the line's normal to the
+        line-of-sight wall in front of it (of `walls`, the map's: facing the same way, within
+        0.5 m of its extent), source "partition", and a hidden corner where it meets the
+        line. A partition gives no specular echo to the track (it runs along the rays), but
+        the back wall's echo vanishes beside it (one leg runs along it) and the dihedral it
+        makes with the back wall answers from its apex (docs/mapping.md, "Rooms from their
+        corners"). Either alone is also made by clutter and by interference; a dip over
+        PARTITION_MIN_DIPS poses, or a shorter one with a corner's run of picks at it, is
+        taken (on the 8 office surveys: 28 partitions, one false, docs/mapping.md)."""
+        robots = np.array([bistatic.robot_to_world(self.robot_c, p) for p in poses]).reshape(-1, 2)
+        if robots.shape[0] == 0:
+            return [], []
+        cos_same = math.cos(math.radians(self.OPENING_CUT_DEG))
+        made, corners = [], []
+        for line, found, ratios in dips:
+            if found.shape[0] == 0:
+                continue
+            ts = (found - line["centre"]) @ line["direction"]
+            order = np.argsort(ts)
+            groups_t = [[order[0]]]
+            for i in order[1:]:
+                if ts[i] - ts[groups_t[-1][-1]] <= self.PARTITION_MERGE_M:
+                    groups_t[-1].append(i)
+                else:
+                    groups_t.append([i])
+            for members in groups_t:
+                t_dip = float(np.mean(ts[members]))
+                if len(members) < self.PARTITION_MIN_DIPS and not self._corner_at(line, t_dip, poses):
+                    continue
+                point = line["centre"] + t_dip * line["direction"]
+                n = line["normal"]
+                reach = None  # the nearest line-of-sight wall in front, along the normal
+                for w in walls:
+                    if w.cls != CLASSES[LOS] or w.length_m <= 0 or float(w.normal @ n) < cos_same:
+                        continue
+                    ahead = float((w.start_m - point) @ w.normal) / float(n @ w.normal)
+                    e = (w.end_m - w.start_m) / w.length_m
+                    along = float((point + ahead * n - w.start_m) @ e)
+                    if ahead > 0.3 and -0.5 <= along <= w.length_m + 0.5 and (reach is None or ahead < reach):
+                        reach = ahead
+                if reach is None or reach <= self.PARTITION_BEHIND_FACE_M + 0.3:
+                    continue
+                direction = line["direction"] if float((robots.mean(axis=0) - point) @ line["direction"]) >= 0 \
+                    else -line["direction"]
+                confidence = min(1.0, 0.25 * len(members) + 0.25)
+                made.append(MapWall(point.copy(), point + (reach - self.PARTITION_BEHIND_FACE_M) * n,
+                                    direction.copy(), CLASSES[HIDDEN], confidence, len(members), 0, 0.0,
+                                    source="partition"))
+                corners.append(MapCorner(point.copy(), confidence, CLASSES[HIDDEN], len(members)))
+        return made, corners
+
+    def _corner_at(self, line, t_m, poses):
+        """Whether the CSI holds a room's corner on `line` (wall dict) within
+        PARTITION_CORNER_M of t_m: a run of per-pose picks that stays put (corner_runs),
+        seen from either side."""
+        ts = t_m + np.arange(-self.PARTITION_CORNER_WINDOW_M, self.PARTITION_CORNER_WINDOW_M + 1e-9,
+                             self.PARTITION_CORNER_STEP_M)
+        groups = []
+        for g in sorted(self.refiner.poses):
+            if g >= len(poses):
+                continue
+            middle = bistatic.robot_to_world(self.robot_c, poses[g])
+            if abs(float((middle - line["centre"]) @ line["direction"]) - t_m) <= self.PARTITION_CORNER_POSES_M:
+                groups.append(g)
+        if len(groups) < CORNER_MIN_POSES:
+            return False
+        for side in (1, -1):
+            for t, *_ in corner_runs(self.refiner, line, ts, groups, side):
+                if abs(t - t_m) <= self.PARTITION_CORNER_M:
+                    return True
+        return False
 
     #: a hidden wall's stretch seen from some pose through an open doorway, with no mapped
     #: wall between, is line of sight (_seen_through_doorways): sampled every
@@ -3343,7 +3500,7 @@ class WallFusion:
             if not doors:
                 continue
             # ...and not past a partition's dip on its line, on either side of the door
-            for line, found in dips:
+            for line, found, _ in dips:
                 if abs(float(line["normal"] @ w.normal)) < math.cos(math.radians(self.OPENING_CUT_DEG)) or \
                         abs(float((0.5 * (w.start_m + w.end_m) - line["centre"]) @ line["normal"])) > 0.3:
                     continue
@@ -3641,7 +3798,8 @@ def wall_style(source):
     no echo JADE reported); dotted: inferred, not seen (a gap between two pieces, a room
     closed at an end wall)."""
     return {"end_wall": ("-.", ", found on the CSI"), "side_wall": ("-.", ", found on the CSI"),
-            "inferred": (":", ", inferred (not seen)")}.get(source, ("-", ""))
+            "inferred": (":", ", inferred (not seen)"),
+            "partition": ("--", ", partition (its echo's dip)")}.get(source, ("-", ""))
 
 
 def plot_map(fused, png_path, title=None, truth=None, dpi=120):
