@@ -1951,6 +1951,27 @@ class WallFusion:
             self._line_gains[key] = self.refiner.line_gain(g, wall, exclude)
         return self._line_gains[key]
 
+    def _gain_profile(self, line, pieces, poses, hull, min_near):
+        """(t, gain, ratio): the poses whose specular point on `line` lies within hull (t0,
+        t1 along it), their line gain (_line_gain, `pieces` left in) and its ratio to the
+        median gain within OPENING_REFERENCE_M of them (inf where fewer than min_near poses
+        are that near, or the median is 0). The openings and the partitions' dips are where
+        that ratio is low."""
+        profile = []
+        for t, g in sorted(self._specular_along(line, poses)):
+            if hull[0] <= t <= hull[1]:
+                v = self._line_gain(g, line, pieces, poses)
+                if v is not None and math.isfinite(v):
+                    profile.append((t, v))
+        t = np.array([q[0] for q in profile], float)
+        gain = np.array([q[1] for q in profile], float)
+        ratio = np.full(t.size, np.inf)
+        for i in range(t.size):
+            near = gain[np.abs(t - t[i]) <= self.OPENING_REFERENCE_M]
+            if near.size >= min_near and np.median(near) > 0:
+                ratio[i] = gain[i] / float(np.median(near))
+        return t, gain, ratio
+
     def _specular_along(self, wall, poses):
         """[(t, g)]: where the specular point of each pose with CSI in front of the wall's
         line lies along it (wall dict, world; its extent ignored)."""
@@ -2090,7 +2111,7 @@ class WallFusion:
                               self.SIDE_WALL_TILT_STEP_DEG)
         los = [k for k, c in enumerate(wall_cls) if c == LOS]
         group = state["group"]
-        robot = np.array([bistatic.robot_to_world(self.robot_c, p) for p in poses])
+        robot = self._robot_positions(poses)
         half_b = 0.5 * float(np.hypot(*(self.rx_c - self.tx_c)))
         found = []
         order = sorted(los, key=lambda k: -(walls[k]["t1"] - walls[k]["t0"]))
@@ -2331,6 +2352,10 @@ class WallFusion:
             if abs(rate - 1.0) <= self.AXIAL_MAX_RATE_ERROR and math.sqrt(max(cov[0, 0], 0.0)) <= self.AXIAL_RATE_SIGMA:
                 found.append({"sign": sign, "ranges": ranges, "position_m": centre, "rate": float(rate)})
         return found
+
+    def _robot_positions(self, poses):
+        """(P, 2): the arrays' midpoint in the world at each pose."""
+        return np.array([bistatic.robot_to_world(self.robot_c, p) for p in poses]).reshape(-1, 2)
 
     def _tx_gain_db(self, aoa_rad):
         """The TX beam's far-field gain toward aoa_rad (robot frame) at the carrier, dB
@@ -3230,21 +3255,9 @@ class WallFusion:
             # (t, gain) of the poses whose specular point lies on the line between its mapped
             # pieces' outer ends: a doorway may also be where two pieces of the wall meet
             hull = (min(a for a, _ in spans), max(b for _, b in spans))
-            profile = []
-            for t, g in sorted(self._specular_along(line, poses)):
-                if hull[0] <= t <= hull[1]:
-                    v = self._line_gain(g, line, pieces, poses)
-                    if v is not None and math.isfinite(v):
-                        profile.append((t, v))
-            if len(profile) < self.OPENING_MIN_POSES + 2:
+            t, _, ratio = self._gain_profile(line, pieces, poses, hull, 2 * self.OPENING_MIN_POSES + 1)
+            if t.size < self.OPENING_MIN_POSES + 2:
                 continue
-            t = np.array([q[0] for q in profile])
-            gain = np.array([q[1] for q in profile])
-            ratio = np.full(t.size, np.inf)
-            for i in range(t.size):
-                near = gain[np.abs(t - t[i]) <= self.OPENING_REFERENCE_M]
-                if near.size >= 2 * self.OPENING_MIN_POSES + 1 and np.median(near) > 0:
-                    ratio[i] = gain[i] / float(np.median(near))
             weak = ratio < self.OPENING_GAIN_RATIO
             i = 0
             while i < t.size:
@@ -3284,9 +3297,7 @@ class WallFusion:
         return False
 
     def _cut_at_openings(self, walls, corners, openings):
-        """The line-of-sight walls cut where an opening lies on them (in place: the part
-        before it keeps the wall's index, which the corners use; the part after it goes to
-        the end of the list, and the corners nearer it follow it)."""
+        """The line-of-sight walls cut where an opening lies on them (in place: _split_wall)."""
         cos_tol = math.cos(math.radians(self.OPENING_CUT_DEG))
         for o in openings:
             mid = 0.5 * (o.start_m + o.end_m)
@@ -3303,12 +3314,26 @@ class WallFusion:
                 parts = [(0.0, q0)] if q0 > 0.05 else []
                 parts += [(q1, length)] if length - q1 > 0.05 else []
                 made = [dataclasses.replace(w, start_m=w.start_m + a * e, end_m=w.start_m + b * e) for a, b in parts]
-                walls[i] = made[0]
-                if len(made) > 1:
-                    walls.append(made[1])
-                    for c in corners:
-                        if i in c.walls and np.hypot(*(c.position_m - made[1].start_m)) < np.hypot(*(c.position_m - made[0].end_m)):
-                            c.walls = tuple(len(walls) - 1 if n == i else n for n in c.walls)
+                self._split_wall(walls, corners, i, made)
+
+    @staticmethod
+    def _split_wall(walls, corners, i, pieces):
+        """walls[i] replaced by `pieces` (MapWalls along it, in order), in place: the first
+        keeps its index, which the corners use; the others go to the end of the list, and
+        each corner of wall i goes with the piece nearest it (the distance to its segment)."""
+        def distance(point, piece):
+            d = piece.end_m - piece.start_m
+            u = float(np.clip((point - piece.start_m) @ d / max(float(d @ d), 1e-24), 0.0, 1.0))
+            return float(np.hypot(*(point - piece.start_m - u * d)))
+
+        walls[i] = pieces[0]
+        index = [i] + list(range(len(walls), len(walls) + len(pieces) - 1))
+        walls.extend(pieces[1:])
+        if len(pieces) > 1:
+            for c in corners:
+                if i in c.walls:
+                    nearest = index[int(np.argmin([distance(c.position_m, piece) for piece in pieces]))]
+                    c.walls = tuple(nearest if n == i else n for n in c.walls)
 
     #: partitions behind a wall: a pose whose specular point on a hidden line finds less
     #: than PARTITION_GAIN_RATIO of the line's median echo gain within OPENING_REFERENCE_M
@@ -3318,7 +3343,7 @@ class WallFusion:
     PARTITION_BEYOND_M = 0.5
 
     def _partition_dips(self, state, poses, wall_cls):
-        """[(line dict, (n, 2) world points, (n,) ratios)]: on each line of hidden walls (_collinear_groups),
+        """[(line dict, (n, 2) world points)]: on each line of hidden walls (_collinear_groups),
         the specular points where its echo all but vanishes. A partition meeting a room's back
         wall is crossed by one leg of the echo from its specular points within a quarter of
         the baseline of it, along its length (with the corridor wall, two walls): the echo
@@ -3338,21 +3363,11 @@ class WallFusion:
             ts = [float((walls_in[k]["centre"] + walls_in[k][end] * walls_in[k]["direction"] - line["centre"])
                         @ line["direction"]) for k in pieces for end in ("t0", "t1")]
             hull = (min(ts) - self.PARTITION_BEYOND_M, max(ts) + self.PARTITION_BEYOND_M)
-            profile = []
-            for t, g in sorted(self._specular_along(line, poses)):
-                v = self._line_gain(g, line, pieces, poses) if hull[0] <= t <= hull[1] else None
-                if v is not None and math.isfinite(v):
-                    profile.append((t, v))
-            if len(profile) < 5:
+            t, _, ratio = self._gain_profile(line, pieces, poses, hull, 5)
+            if t.size < 5:
                 continue
-            t = np.array([q[0] for q in profile])
-            gain = np.array([q[1] for q in profile])
-            dips = []
-            for i in range(t.size):
-                near = gain[np.abs(t - t[i]) <= self.OPENING_REFERENCE_M]
-                if near.size >= 5 and gain[i] < self.PARTITION_GAIN_RATIO * float(np.median(near)):
-                    dips.append((line["centre"] + t[i] * line["direction"], gain[i] / float(np.median(near))))
-            out.append((line, np.array([q for q, _ in dips]).reshape(-1, 2), np.array([r for _, r in dips])))
+            dips = t[ratio < self.PARTITION_GAIN_RATIO]
+            out.append((line, line["centre"][None, :] + dips[:, None] * line["direction"][None, :]))
         return out
 
     #: partitions (_partitions): dips within PARTITION_MERGE_M of each other along a line are
@@ -3380,12 +3395,12 @@ class WallFusion:
         corners"). Either alone is also made by clutter and by interference; a dip over
         PARTITION_MIN_DIPS poses, or a shorter one with a corner's run of picks at it, is
         taken (on the 8 office surveys: 28 partitions, one false, docs/mapping.md)."""
-        robots = np.array([bistatic.robot_to_world(self.robot_c, p) for p in poses]).reshape(-1, 2)
-        if robots.shape[0] == 0:
+        if len(poses) == 0:
             return [], []
+        robots_mean = self._robot_positions(poses).mean(axis=0)
         cos_same = math.cos(math.radians(self.OPENING_CUT_DEG))
         made, corners = [], []
-        for line, found, ratios in dips:
+        for line, found in dips:
             if found.shape[0] == 0:
                 continue
             ts = (found - line["centre"]) @ line["direction"]
@@ -3413,7 +3428,7 @@ class WallFusion:
                         reach = ahead
                 if reach is None or reach <= self.PARTITION_BEHIND_FACE_M + 0.3:
                     continue
-                direction = line["direction"] if float((robots.mean(axis=0) - point) @ line["direction"]) >= 0 \
+                direction = line["direction"] if float((robots_mean - point) @ line["direction"]) >= 0 \
                     else -line["direction"]
                 confidence = min(1.0, 0.25 * len(members) + 0.25)
                 made.append(MapWall(point.copy(), point + (reach - self.PARTITION_BEHIND_FACE_M) * n,
@@ -3455,9 +3470,7 @@ class WallFusion:
 
     def _seen_through_doorways(self, walls, corners, detections, echoes, openings, poses, dips=()):
         """Hidden walls cut into the stretches a pose sees through an open doorway (class
-        line of sight) and the rest (in place: the first piece keeps the wall's index, which
-        the corners use; the others go to the end of the list, and the corners nearer them
-        follow). A room's back wall behind an open door is mapped from echoes that crossed
+        line of sight) and the rest (in place: _split_wall). A room's back wall behind an open door is mapped from echoes that crossed
         the corridor wall beside the door (their specular path), yet the robot sees it, in
         part, through the door: the class says whether a wall is in sight, as the truth maps
         say it (a wall with no wall between it and some pose). Only an opening the map found
@@ -3466,9 +3479,10 @@ class WallFusion:
         piece of such a wall too). Returns the number of stretches made line of sight."""
         if not openings or len(poses) == 0:
             return 0
-        robots = np.array([bistatic.robot_to_world(self.robot_c, p) for p in poses])
+        robots = self._robot_positions(poses)
         cos_limit = math.cos(math.radians(self.VISIBLE_MAX_INCIDENCE_DEG))
         cos_facing = math.cos(math.radians(30.0))
+        cos_line = math.cos(math.radians(self.OPENING_CUT_DEG))
         seen_pieces = 0
         for i in range(len(walls)):
             w = walls[i]
@@ -3486,11 +3500,10 @@ class WallFusion:
             # VISIBLE_BEYOND_DOOR_M of the door's span along it. The partitions between rooms are
             # seldom mapped (they run along the echoes' rays): a view through the door further
             # along the wall would go through one more often than not
+            facing = [o for o in openings if float(o.normal @ w.normal) >= cos_facing]
             near_door = np.zeros(count, bool)
             doors = []
-            for o in openings:
-                if float(o.normal @ w.normal) < cos_facing:
-                    continue
+            for o in facing:
                 d = (o.end_m - o.start_m) / max(o.width_m, 1e-12)
                 s = (points - o.start_m) @ d
                 here = (s >= -self.VISIBLE_BEYOND_DOOR_M) & (s <= o.width_m + self.VISIBLE_BEYOND_DOOR_M)
@@ -3500,21 +3513,18 @@ class WallFusion:
             if not doors:
                 continue
             # ...and not past a partition's dip on its line, on either side of the door
-            for line, found, _ in dips:
-                if abs(float(line["normal"] @ w.normal)) < math.cos(math.radians(self.OPENING_CUT_DEG)) or \
-                        abs(float((0.5 * (w.start_m + w.end_m) - line["centre"]) @ line["normal"])) > 0.3:
-                    continue
-                for o in openings:
-                    if float(o.normal @ w.normal) < cos_facing:
-                        continue
-                    mid = float((0.5 * (o.start_m + o.end_m) - w.start_m) @ e)
-                    half = 0.5 * o.width_m
-                    for q in found:
-                        tq = float((q - w.start_m) @ e)
-                        if tq > mid + half:
-                            near_door &= ~(along > tq)
-                        elif tq < mid - half:
-                            near_door &= ~(along < tq)
+            dips_t = [float((q - w.start_m) @ e) for line, found in dips
+                      if abs(float(line["normal"] @ w.normal)) >= cos_line
+                      and abs(float((0.5 * (w.start_m + w.end_m) - line["centre"]) @ line["normal"])) <= 0.3
+                      for q in found]
+            for o in facing:
+                mid = float((0.5 * (o.start_m + o.end_m) - w.start_m) @ e)
+                half = 0.5 * o.width_m
+                for tq in dips_t:
+                    if tq > mid + half:
+                        near_door &= ~(along > tq)
+                    elif tq < mid - half:
+                        near_door &= ~(along < tq)
             rel = robots[None, :, :] - points[:, None, :]  # (Q, P, 2)
             distance = np.hypot(rel[..., 0], rel[..., 1])
             cos_in = (rel @ w.normal) / np.maximum(distance, 1e-12)
@@ -3566,13 +3576,7 @@ class WallFusion:
                         margin = self.DETECTION_BEYOND_END_M
                         self._move_to_sight(points_by_class, w, t0 - margin if s0 == 0 else t0,
                                             t1 + margin if s1 == count else t1, e)
-            walls[i] = made[0]
-            for piece in made[1:]:
-                walls.append(piece)
-                for c in corners:
-                    if i in c.walls and np.hypot(*(c.position_m - 0.5 * (piece.start_m + piece.end_m))) < \
-                            np.hypot(*(c.position_m - 0.5 * (walls[i].start_m + walls[i].end_m))):
-                        c.walls = tuple(len(walls) - 1 if n == i else n for n in c.walls)
+            self._split_wall(walls, corners, i, made)
         return seen_pieces
 
     def _move_to_sight(self, points_by_class, wall, t0, t1, e):
