@@ -688,6 +688,8 @@ class qa_wall_fusion(gr_unittest.TestCase):
             fusion.add([0.0, 0.0, 0.0], [{"aoa_deg": 10.0}])
         with self.assertRaisesRegex(FusionError, "line_tolerance_m"):
             WallFusion(RADAR, FusionSettings(line_tolerance_m=-1.0))
+        with self.assertRaisesRegex(FusionError, "partitions: expected True or False"):
+            WallFusion(RADAR, FusionSettings(partitions="no"))
 
     def test_no_walls(self):
         """Free space (only the direct path's residue) and an empty fusion give empty maps that

@@ -163,6 +163,11 @@ class FusionSettings:
                 raise FusionError(f"{name}: expected an integer >= 1, got {value!r}")
         if not math.isfinite(self.min_relative_power_db):
             raise FusionError(f"min_relative_power_db: expected a number, got {self.min_relative_power_db!r}")
+        for name in ("estimate_materials", "correct_materials", "correct_poses", "side_walls", "partitions",
+                     "orientation_lean"):
+            value = getattr(self, name)
+            if not isinstance(value, (bool, np.bool_)):  # ("no" would be taken for yes)
+                raise FusionError(f"{name}: expected True or False, got {value!r}")
         material_from(self.material)
 
 
