@@ -34,8 +34,9 @@ the chain (docs/mapping.md):
      stretches that hold it, the wall is drawn with a gap (stats: openings); a room's back
      wall seen through one is line of sight up to its partitions;
   7. partitions between the rooms behind a wall, on the CSI: where the hidden wall's echo
-     vanishes beside one (one leg runs along it) over two poses, or over one with a room's
-     corner there (--no-partitions; stats: partitions; GeoJSON "source": "partition").
+     vanishes beside one (one leg runs along it) over two poses, or over one where it is
+     deep or a room's corner answers there (--no-partitions; stats: partitions; GeoJSON
+     "source": "partition").
 
 outputs:
   MAP.geojson  FORMATS.md's map: walls (class, confidence, material), detections, corners,
@@ -83,7 +84,7 @@ def build_parser():
     p.add_argument("--no-partitions", action="store_true",
                    help="do not draw the partitions between the rooms behind a wall (hidden walls across the track, "
                         "\"source\": \"partition\" in the GeoJSON, found where the wall's echo vanishes beside them; "
-                        "on the office floors' eight surveys hidden coverage 31-43 %% -> 41-71 %%, one false one (1.4 %% of the true wall length); "
+                        "on the office floors' eight surveys hidden coverage 31-43 %% -> 41-81 %%, two false ones (2.8 %% of the true wall length on the one survey that has them); "
                         "docs/mapping.md, \"Partitions\")")
     p.add_argument("--no-orientation-lean", action="store_true",
                    help="take the echoes' orientations as they are fitted in the pose adjustment; by default one "

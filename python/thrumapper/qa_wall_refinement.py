@@ -845,6 +845,41 @@ class qa_wall_refinement(gr_unittest.TestCase):
         self.assertGreater(coverage, coverage_before + 0.3, (coverage_before, coverage))
         self.assertLess(false_m, 0.05)
 
+    def test_partition_from_one_pose_deep_dip(self):
+        """A room closed at the end of the survey: the brick back wall (face y = -3.525 m)
+        stops at x = 7.9 m, where a plasterboard partition meets it, and the robot, a pose
+        every 0.4 m, stops at x = 8.0 m. The back wall's echo vanishes at the last pose
+        only: one pose's dip, deep and with its neighbour below the line's median. With no
+        room corner to confirm it (PARTITION_CORNER_M < 0) the partition is still drawn,
+        within 0.15 m of x = 7.9 m, from the back wall's line to the corridor wall's back
+        face; without the rule for one deep dip (PARTITION_LONE_DEEP off) nothing is.
+        With a pose every 0.2 m, the double bounce between the corridor's two walls maps a
+        short hidden line beyond the north wall whose echo also dips at its end: it is too
+        short (PARTITION_LONE_LINE_M) to be rooms' back wall, and nothing is drawn across
+        the track north of the corridor."""
+        data = rooms_behind_corridor_data(-3.6, (2.0, 7.9))
+        data["walls"][1]["segment"] = [[-2.0, -3.6], [7.9, -3.6]]  # the back wall ends at the partition
+        sparse = dict(data, trajectory=dict(data["trajectory"], step_m=0.4))
+        sc = scene.load_scene(sparse)
+        res = building_sim.simulate_survey(sc, progress=False)
+        fused = mapped_with(sc, res, PARTITION_CORNER_M=-1.0)
+        partitions = [w for w in fused.walls if w.source == "partition"]
+        self.assertEqual(len(partitions), 1, partitions)
+        w = partitions[0]
+        for end in (w.start_m, w.end_m):
+            self.assertLess(abs(end[0] - 7.9), 0.15, w)
+        ys = sorted((w.start_m[1], w.end_m[1]))
+        self.assertLess(abs(ys[0] + 3.525), 0.15, w)
+        self.assertLess(abs(ys[1] + 1.15), 0.3, w)
+        none = mapped_with(sc, res, PARTITION_CORNER_M=-1.0, PARTITION_LONE_DEEP=False)
+        self.assertFalse(any(w.source == "partition" for w in none.walls), none.walls)
+
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+        fused = mapped_with(sc, res, PARTITION_CORNER_M=-1.0)
+        north = [w for w in fused.walls if w.source == "partition" and max(w.start_m[1], w.end_m[1]) > 2.1]
+        self.assertEqual(north, [])
+
     def test_skewed_side_wall_found_where_jade_reports_one(self):
         """skewed_walls' first 6 m: the plasterboard walls skewed 18° to the left and 12° to the
         right of the track are 30° apart, and where their echoes come within a fraction of a

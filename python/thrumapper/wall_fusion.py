@@ -3346,10 +3346,20 @@ class WallFusion:
     PARTITION_GAIN_RATIO = 0.3
     #: ...looked for on the line's mapped pieces and this far past their outer ends
     PARTITION_BEYOND_M = 0.5
+    #: ...one pose's dip is a partition on its own when under PARTITION_DEEP_RATIO with its
+    #: neighbours' ratios under PARTITION_SHOULDER_RATIO (_partitions)
+    PARTITION_DEEP_RATIO = 0.2
+    PARTITION_SHOULDER_RATIO = 1.0
+    #: ...on a line of at least PARTITION_LONE_LINE_M of mapped pieces (rooms' back walls: 9-21 m
+    #: on the office surveys; a double bounce's 2.4 m image dips at its end too, qa_wall_refinement)
+    PARTITION_LONE_LINE_M = 4.0
+    PARTITION_LONE_DEEP = True
 
     def _partition_dips(self, state, poses, wall_cls):
-        """[(line dict, (n, 2) world points)]: on each line of hidden walls (_collinear_groups),
-        the specular points where its echo all but vanishes. A partition meeting a room's back
+        """[(line dict, (n, 2) world points, (n,) deep)]: on each line of hidden walls
+        (_collinear_groups), the specular points where its echo all but vanishes, and whether
+        each is deep enough to be a partition alone (PARTITION_DEEP_RATIO with its neighbours
+        under PARTITION_SHOULDER_RATIO, on a line of PARTITION_LONE_LINE_M or more). A partition meeting a room's back
         wall is crossed by one leg of the echo from its specular points within a quarter of
         the baseline of it, along its length (with the corridor wall, two walls): the echo
         drops there, over one to three poses. So does it at the interference of two echoes,
@@ -3371,8 +3381,16 @@ class WallFusion:
             t, _, ratio = self._gain_profile(line, pieces, poses, hull, 5)
             if t.size < 5:
                 continue
-            dips = t[ratio < self.PARTITION_GAIN_RATIO]
-            out.append((line, line["centre"][None, :] + dips[:, None] * line["direction"][None, :]))
+            low = np.flatnonzero(ratio < self.PARTITION_GAIN_RATIO)
+            # a lone pose's dip is deep when its neighbours along the line (where they have a
+            # ratio) are below the median too: interference dips between echoes near the line
+            # rise on either side above it
+            mapped_m = sum(walls_in[k]["t1"] - walls_in[k]["t0"] for k in pieces)
+            deep = np.array([mapped_m >= self.PARTITION_LONE_LINE_M and ratio[i] < self.PARTITION_DEEP_RATIO and
+                             all(ratio[j] < self.PARTITION_SHOULDER_RATIO for j in (i - 1, i + 1)
+                                 if 0 <= j < ratio.size and math.isfinite(ratio[j]))
+                             for i in low], bool)
+            out.append((line, line["centre"][None, :] + t[low, None] * line["direction"][None, :], deep))
         return out
 
     #: partitions (_partitions): dips within PARTITION_MERGE_M of each other along a line are
@@ -3398,14 +3416,15 @@ class WallFusion:
         the back wall's echo vanishes beside it (one leg runs along it) and the dihedral it
         makes with the back wall answers from its apex (docs/mapping.md, "Rooms from their
         corners"). Either alone is also made by clutter and by interference; a dip over
-        PARTITION_MIN_DIPS poses, or a shorter one with a corner's run of picks at it, is
-        taken (on the 8 office surveys: 28 partitions, one false, docs/mapping.md)."""
+        PARTITION_MIN_DIPS poses, a shorter one that is deep (_partition_dips' flag), or one
+        with a corner's run of picks at it, is taken (on the 8 office surveys: 41
+        partitions, two false, docs/mapping.md)."""
         if len(poses) == 0:
             return [], []
         robots_mean = self._robot_positions(poses).mean(axis=0)
         cos_same = math.cos(math.radians(self.OPENING_CUT_DEG))
         made, corners = [], []
-        for line, found in dips:
+        for line, found, deep in dips:
             if found.shape[0] == 0:
                 continue
             ts = (found - line["centre"]) @ line["direction"]
@@ -3418,7 +3437,8 @@ class WallFusion:
                     groups_t.append([i])
             for members in groups_t:
                 t_dip = float(np.mean(ts[members]))
-                if len(members) < self.PARTITION_MIN_DIPS and not self._corner_at(line, t_dip, poses):
+                if len(members) < self.PARTITION_MIN_DIPS and not (
+                        self.PARTITION_LONE_DEEP and deep[members].all()) and not self._corner_at(line, t_dip, poses):
                     continue
                 point = line["centre"] + t_dip * line["direction"]
                 n = line["normal"]
@@ -3518,7 +3538,7 @@ class WallFusion:
             if not doors:
                 continue
             # ...and not past a partition's dip on its line, on either side of the door
-            dips_t = [float((q - w.start_m) @ e) for line, found in dips
+            dips_t = [float((q - w.start_m) @ e) for line, found, _ in dips
                       if abs(float(line["normal"] @ w.normal)) >= cos_line
                       and abs(float((0.5 * (w.start_m + w.end_m) - line["centre"]) @ line["normal"])) <= 0.3
                       for q in found]
