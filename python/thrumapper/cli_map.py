@@ -36,7 +36,11 @@ the chain (docs/mapping.md):
   7. partitions between the rooms behind a wall, on the CSI: where the hidden wall's echo
      vanishes beside one (one leg runs along it) over two poses, or over one where it is
      deep or a room's corner answers there (--no-partitions; stats: partitions; GeoJSON
-     "source": "partition").
+     "source": "partition");
+  8. hidden walls drawn on past their echoes, on the CSI: JADE reports few echoes of the
+     rooms' back walls, and a hidden wall goes on along its line as far as the poses beside
+     it hold its echo (--no-hidden-continuation; stats: hidden_walls_continued; GeoJSON
+     "source": "continued").
 
 outputs:
   MAP.geojson  FORMATS.md's map: walls (class, confidence, material), detections, corners,
@@ -86,6 +90,10 @@ def build_parser():
                         "\"source\": \"partition\" in the GeoJSON, found where the wall's echo vanishes beside them; "
                         "on the office floors' eight surveys hidden coverage 31-43 %% -> 41-81 %%, two false ones (2.8 %% of the true wall length on the one survey that has them); "
                         "docs/mapping.md, \"Partitions\")")
+    p.add_argument("--no-hidden-continuation", action="store_true",
+                   help="do not draw a hidden wall on past its echoes where the CSI of the poses beside it holds its "
+                        "echo (\"source\": \"continued\" in the GeoJSON; on the office floors' eight surveys "
+                        "hidden coverage median 58 -> 66 %%, no false wall; docs/mapping.md, \"Hidden walls drawn on\")")
     p.add_argument("--no-orientation-lean", action="store_true",
                    help="take the echoes' orientations as they are fitted in the pose adjustment; by default one "
                         "angle by which the walls on the left and on the right lean in mirror image (the "
@@ -206,6 +214,7 @@ def main(argv=None):
                                          max_range_m=args.max_range_m, min_wall_poses=args.min_wall_poses,
                                          estimate_materials=not args.no_material_labels,
                                          side_walls=not args.no_side_walls, partitions=not args.no_partitions,
+                                         continue_hidden_walls=not args.no_hidden_continuation,
                                          orientation_lean=not args.no_orientation_lean,
                                          correct_materials=not args.no_material_corrections)
         fusion_settings.check()

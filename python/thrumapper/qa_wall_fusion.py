@@ -690,6 +690,8 @@ class qa_wall_fusion(gr_unittest.TestCase):
             WallFusion(RADAR, FusionSettings(line_tolerance_m=-1.0))
         with self.assertRaisesRegex(FusionError, "partitions: expected True or False"):
             WallFusion(RADAR, FusionSettings(partitions="no"))
+        with self.assertRaisesRegex(FusionError, "continue_hidden_walls: expected True or False"):
+            WallFusion(RADAR, FusionSettings(continue_hidden_walls=1))
 
     def test_no_walls(self):
         """Free space (only the direct path's residue) and an empty fusion give empty maps that

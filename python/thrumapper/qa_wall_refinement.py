@@ -761,7 +761,8 @@ class qa_wall_refinement(gr_unittest.TestCase):
         The truth maps the back wall in sight over x = 0-5 m (through the door) and hidden
         beyond the partitions. The map finds the door, draws the back wall behind it in
         sight from the door to the east partition (within 0.3 m; the back wall's echoes start
-        at x = 1.3 m), hidden past it, and scores its detections by class within 0.1 m of the
+        at x = 1.3 m, and it is drawn on before that where the CSI holds its echo), hidden
+        past it, and scores its detections by class within 0.1 m of the
         true face (a detection of the wrong class would lie 2 m or more from the nearest
         true wall of its class). Without the step the back wall is all hidden; without the
         partition's dip in the back wall's echo, the view runs on past the partition."""
@@ -782,11 +783,13 @@ class qa_wall_refinement(gr_unittest.TestCase):
 
         fused = mapped_with(sc, res)
         self.assertEqual(len(fused.openings), 1, fused.openings)
-        self.assertEqual(fused.stats["walls_seen_through_openings"], 1)
-        seen = back_walls(fused, "line_of_sight")
-        self.assertEqual(len(seen), 1, seen)
+        seen = sorted(back_walls(fused, "line_of_sight"))  # its echoes' piece, and where it is drawn on
+        self.assertIn(len(seen), (1, 2), seen)
+        self.assertEqual(fused.stats["walls_seen_through_openings"], len(seen))
+        for (_, x1), (x0, _) in zip(seen, seen[1:]):
+            self.assertLess(x0 - x1, 0.05, seen)  # one stretch
         self.assertLess(seen[0][0], 2.05)  # from the door's west jamb or before...
-        self.assertLess(abs(seen[0][1] - 5.0), 0.3, seen)  # ...to the east partition
+        self.assertLess(abs(seen[-1][1] - 5.0), 0.3, seen)  # ...to the east partition
         self.assertTrue(any(x0 < 6.5 < x1 for x0, x1 in back_walls(fused, "hidden")), fused.walls)
         on_back = {c: d[d[:, 1] < -2.5] for c, d in fused.detections.items()}
         self.assertTrue(np.all((on_back["line_of_sight"][:, 0] > -0.3) & (on_back["line_of_sight"][:, 0] < 5.3)), on_back)
@@ -879,6 +882,71 @@ class qa_wall_refinement(gr_unittest.TestCase):
         fused = mapped_with(sc, res, PARTITION_CORNER_M=-1.0)
         north = [w for w in fused.walls if w.source == "partition" and max(w.start_m[1], w.end_m[1]) > 2.1]
         self.assertEqual(north, [])
+
+    def test_hidden_wall_drawn_on_where_the_csi_holds_its_echo(self):
+        """A plasterboard corridor wall (face y = -1.0 m) with another behind it (face y =
+        -3.525 m), surveyed along x = 0-8 m; JADE's echoes from beyond 16 ns of excess
+        delay are dropped at the poses before x = 3 m (as the estimator misses the rooms'
+        back walls behind clutter: the office surveys have whole stretches unmapped). The
+        back wall is mapped from x = 3 m on; the CSI of the poses before it holds its echo,
+        and the wall is drawn on over them (source "continued", hidden, on the mapped piece's
+        line, within 0.25 m of the face as that piece is, to x < 1.1 m), but no further than half the span of its line's pieces (CONTINUE_MAX_FRACTION)
+        and not at all with the step off (continue_hidden_walls False): hidden coverage up by
+        more than a quarter of the back wall, no false wall added."""
+        from gnuradio.thrumapper import jade_pipeline, rx_calibration
+        wf = importlib.import_module("gnuradio.thrumapper.wall_fusion")
+        data = rooms_behind_corridor_data(-3.6, ())
+        data["walls"][1]["material"] = "plasterboard"  # (the survey's one material: no material step)
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+        truth = evaluation.load_map(building_sim.truth_geojson(sc))
+        with tempfile.TemporaryDirectory() as tmp:
+            read = written_survey(tmp, sc, res, res.poses_true)
+            work = rx_calibration.calibrated_survey(read, rx_calibration.calibrate_survey(read))
+            results = list(jade_pipeline.run_survey(work, cli_map.jade_settings(), read.system_delay_s, keep_csi=True))
+        radar = RadarGeometry.from_survey(read)
+
+        def fused(**settings):
+            fusion = wf.WallFusion(radar, wf_settings(correct_poses=False, material=dict(read.wall_model),
+                                                      estimate_materials=False, **settings))
+            fusion.enable_csi_refinement(read.system_delay_s)
+            dropped = 0
+            for r in results:
+                paths = r["paths"]
+                if r["pose"][0] < 3.0:  # the back wall's echoes (21 ns) missed here
+                    kept = [p for p in paths if p["delay_s"] <= 16e-9]
+                    dropped += len(paths) - len(kept)
+                    paths = kept
+                fusion.add(r["pose"], paths, r["frames"][0], r.get("csi"), r.get("tx_weights"))
+            self.assertGreater(dropped, 5)
+            fused_map = fusion.build_map()
+            return fused_map, evaluation.score_map(evaluation.load_map(fused_map.to_geojson()), truth)
+
+        on, report_on = fused()
+        off, report_off = fused(continue_hidden_walls=False)
+        back = [w for w in off.walls if w.cls == "hidden" and abs(w.start_m[1] + 3.525) < 0.25 and w.source == "echoes"]
+        self.assertTrue(back, off.walls)
+        first_x = min(min(w.start_m[0], w.end_m[0]) for w in back)
+        self.assertGreater(first_x, 2.4, back)  # mapped from about x = 3 m only
+        self.assertFalse(any(w.source == "continued" for w in off.walls))
+        continued = [w for w in on.walls if w.source == "continued" and abs(w.start_m[1] + 3.525) < 0.3]
+        self.assertEqual(len(continued), 1, on.walls)
+        w = continued[0]
+        self.assertEqual(w.cls, "hidden")
+        self.assertEqual(w.num_echoes, 0)
+        piece = min(back, key=lambda p: min(p.start_m[0], p.end_m[0]))
+        for end in (w.start_m, w.end_m):
+            self.assertLess(abs(end[1] + 3.525), 0.25, w)
+            self.assertLess(abs(float((end - piece.start_m) @ piece.normal)), 0.02, (w, piece))  # on its line
+        xs = sorted((w.start_m[0], w.end_m[0]))
+        self.assertLess(abs(xs[1] - first_x), 0.05, (w, first_x))  # from the mapped piece's end
+        self.assertLess(xs[0], 1.1, w)
+        span = max(max(p.start_m[0], p.end_m[0]) for p in back) - first_x
+        self.assertLessEqual(xs[1] - xs[0], wf.WallFusion.CONTINUE_MAX_FRACTION * span + 0.01)
+        self.assertEqual(on.stats["hidden_walls_continued"], len([v for v in on.walls if v.source == "continued"]))
+        gained = report_on["classes"]["hidden"]["covered_length_m"] - report_off["classes"]["hidden"]["covered_length_m"]
+        self.assertGreater(gained, 2.0, (report_on["classes"]["hidden"], report_off["classes"]["hidden"]))
+        self.assertLess(report_on["false_wall_length_m"], report_off["false_wall_length_m"] + 0.05)
 
     def test_skewed_side_wall_found_where_jade_reports_one(self):
         """skewed_walls' first 6 m: the plasterboard walls skewed 18° to the left and 12° to the

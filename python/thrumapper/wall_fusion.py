@@ -123,6 +123,10 @@ class FusionSettings:
     #: vanishes over two poses, or over one where the CSI holds a room's corner there too
     #: (WallFusion._partitions; docs/mapping.md, "Partitions")
     partitions: bool = True
+    #: with the CSI, draw a hidden wall on past its mapped ends as far as the poses beside it
+    #: hold its echo (JADE reports few echoes of the rooms' back walls: whole stretches go
+    #: unmapped; WallFusion._hidden_walls_continued; docs/mapping.md, "Hidden walls drawn on")
+    continue_hidden_walls: bool = True
     #: estimate with the poses the angle by which the echoes' fitted normals lean in mirror
     #: image on the two sides of the track (the corridor's double bounces), rather than take
     #: it for heading (WallFusion.ORIENTATION_LEAN_SIGMA_DEG; docs/mapping.md, "The echoes' lean")
@@ -164,7 +168,7 @@ class FusionSettings:
         if not math.isfinite(self.min_relative_power_db):
             raise FusionError(f"min_relative_power_db: expected a number, got {self.min_relative_power_db!r}")
         for name in ("estimate_materials", "correct_materials", "correct_poses", "side_walls", "partitions",
-                     "orientation_lean"):
+                     "continue_hidden_walls", "orientation_lean"):
             value = getattr(self, name)
             if not isinstance(value, (bool, np.bool_)):  # ("no" would be taken for yes)
                 raise FusionError(f"{name}: expected True or False, got {value!r}")
@@ -252,7 +256,9 @@ class MapWall:
     material: str = None
     #: what the wall was found from: "echoes" (JADE's, fitted on the CSI where there is one),
     #: "end_wall" or "side_wall" (hypotheses scored on the CSI alone: WallFusion._end_walls,
-    #: _side_walls), or "inferred" (a gap between two pieces of one line-of-sight wall, drawn
+    #: _side_walls), "continued" (a hidden wall drawn on past its echoes where the CSI holds
+    #: its echo: _hidden_walls_continued), "partition" (_partitions), or "inferred" (a gap
+    #: between two pieces of one line-of-sight wall, a room closed at an end wall: drawn
     #: without echoes of its own)
     source: str = "echoes"
 
@@ -1949,11 +1955,17 @@ class WallFusion:
         """refiner.line_gain(g, wall, exclude), reused while the line stays within FIT_REUSE_M
         and FIT_REUSE_DEG in pose g's view, as the fits are (_fit_echo): between the rounds the
         map moves by centimetres. The cache (_line_gains) lasts one build_map."""
+        fitted = self._line_echo(g, wall, exclude, poses)
+        return None if fitted is None else fitted[0]
+
+    def _line_echo(self, g, wall, exclude, poses, crossing_as=None):
+        """refiner.line_echo(g, wall, exclude, crossing_as), (gain, energy explained), cached
+        as _line_gain."""
         point_r, normal_r = self._robot_line(wall, poses[g])
         key = (g, tuple(sorted(exclude)), round(float(point_r @ normal_r) / self.FIT_REUSE_M),
-               round(math.atan2(normal_r[1], normal_r[0]) / math.radians(self.FIT_REUSE_DEG)))
+               round(math.atan2(normal_r[1], normal_r[0]) / math.radians(self.FIT_REUSE_DEG)), crossing_as)
         if key not in self._line_gains:
-            self._line_gains[key] = self.refiner.line_gain(g, wall, exclude)
+            self._line_gains[key] = self.refiner.line_echo(g, wall, exclude, crossing_as)
         return self._line_gains[key]
 
     def _gain_profile(self, line, pieces, poses, hull, min_near):
@@ -3076,6 +3088,11 @@ class WallFusion:
             corners.extend(MapCorner(c.position_m, c.confidence, c.cls, c.num_poses, (len(walls) + n,))
                            for n, c in enumerate(partition_corners))
             walls.extend(partitions)
+        continued = []
+        if self._fits_on_csi and s.continue_hidden_walls:  # (before the views through doors: seen, they are)
+            continued = self._timed("hidden walls continued", self._hidden_walls_continued, state, poses, wall_cls,
+                                    walls)
+            walls.extend(continued)
         seen_through = self._seen_through_doorways(walls, corners, detections, echoes, openings, poses, dips)
         for cls in CLASSES:
             detections[cls] = np.array(detections[cls]).reshape(-1, 2)
@@ -3087,7 +3104,8 @@ class WallFusion:
                       "corner_echoes": int(np.count_nonzero(labels == CORNER)),
                       "unassigned_echoes": int(np.count_nonzero((labels == UNASSIGNED) & ~ghosts)),
                       "end_walls": len(end_walls), "side_walls": len(side_walls), "openings": len(openings),
-                      "corridor_walls_closed": len(closed), "partitions": len(partitions), "walls_seen_through_openings": seen_through,
+                      "corridor_walls_closed": len(closed), "partitions": len(partitions),
+                      "hidden_walls_continued": len(continued), "walls_seen_through_openings": seen_through,
                       "detections_in_openings": in_openings, "walls_clipped_at_crossings": len(clipped),
                       "detections_beyond_wall_ends": beyond_ends,
                       "walls_absorbed_by_side_walls": len(absorbed), "inferred_walls": sum(1 for w in walls if w.inferred),
@@ -3462,6 +3480,115 @@ class WallFusion:
                 corners.append(MapCorner(point.copy(), confidence, CLASSES[HIDDEN], len(members)))
         return made, corners
 
+    #: hidden walls drawn on past their echoes (_hidden_walls_continued): on a line of hidden
+    #: walls whose longest piece is CONTINUE_MIN_M or more, from each end of its pieces outward,
+    #: a pose whose specular point lies past the end is kept while its line gain is at least
+    #: CONTINUE_RATIO of the median on the pieces and the line explains at least
+    #: CONTINUE_SHIFT_RATIO of the energy that the same line moved CONTINUE_SHIFT_M either way
+    #: along its normal does (CsiWallRefiner.line_echo); it ends at
+    #: CONTINUE_ABSENT_POSES consecutive poses that fail, and at CONTINUE_MAX_FRACTION of the
+    #: pieces' span (a line fitted a few degrees off drifts from its wall as it goes, and the
+    #: gain tells its offset only to a few tenths of a metre)
+    CONTINUE_MIN_M = 3.0
+    CONTINUE_RATIO = 0.25
+    CONTINUE_SHIFT_M = 0.25
+    CONTINUE_SHIFT_RATIO = 0.7
+    CONTINUE_ABSENT_POSES = 2
+    CONTINUE_MAX_FRACTION = 0.5
+
+    def _hidden_walls_continued(self, state, poses, wall_cls, drawn=()):
+        """[MapWall]: hidden walls drawn on past the ends of their line's mapped pieces, on the
+        CSI (source "continued"). JADE reports few echoes of the rooms' back walls behind a
+        corridor wall (56 on office_floor's 100 poses), and whole stretches of them go
+        unmapped; the CSI of the poses beside such a stretch holds the wall's echo about as
+        strongly as its mapped part does (_line_gain, the pieces left in: 0.3-1.3 of their
+        median on office_floor's south exterior wall), and where the wall ends it falls to a
+        tenth or less. The line must stay on the wall, too: the same line 0.25 m nearer or
+        further must not hold much more (a line that has drifted off its wall is closer to
+        the wall on one side). Walked from each end (CONTINUE_*); the stretch kept is drawn on
+        the line of its longest piece, hidden, with no echoes of its own, less what the map's
+        walls on that line (`drawn`, MapWalls) already cover (docs/mapping.md, "Hidden walls
+        drawn on")."""
+        walls_in = state["walls"]
+        hidden = [k for k, c in enumerate(wall_cls) if c == HIDDEN]
+        if not hidden or len(poses) == 0:
+            return []
+        self._refiner_map(state, poses, wall_cls)
+        out = []
+        for members in self._collinear_groups([walls_in[k] for k in hidden]):
+            pieces = tuple(hidden[i] for i in members)
+            longest = max(pieces, key=lambda k: walls_in[k]["t1"] - walls_in[k]["t0"])
+            line = walls_in[longest]
+            if line["t1"] - line["t0"] < self.CONTINUE_MIN_M:
+                continue
+            spans = []  # each piece's extent along the line
+            for k in pieces:
+                ends = [float((walls_in[k]["centre"] + walls_in[k][end] * walls_in[k]["direction"] - line["centre"])
+                              @ line["direction"]) for end in ("t0", "t1")]
+                spans.append((min(ends), max(ends)))
+            beside = sorted(self._specular_along(line, poses))
+            fits = {}
+
+            def fit(g, shift_m=0.0):  # (gain, energy explained) of the line moved shift_m toward the robot
+                if (g, shift_m) not in fits:
+                    moved = dict(line, centre=line["centre"] + shift_m * line["normal"])
+                    v = self._line_echo(g, moved, pieces, poses, longest)
+                    fits[g, shift_m] = v if v is not None and all(map(math.isfinite, v)) else (0.0, 0.0)
+                return fits[g, shift_m]
+
+            def gain(g):
+                return fit(g)[0]
+
+            own = [g for t, g in beside if any(a <= t <= b for a, b in spans)]
+            if len(own) < 5:
+                continue
+            reference = float(np.median([gain(g) for g in own]))
+            if reference <= 0:
+                continue
+            lo, hi = min(a for a, _ in spans), max(b for _, b in spans)
+            reach = self.CONTINUE_MAX_FRACTION * (hi - lo)
+            for sign, end in ((-1.0, lo), (1.0, hi)):
+                kept, failed, last = [], 0, None
+                for d, t, g in sorted((sign * (t - end), t, g) for t, g in beside if sign * (t - end) > 0):
+                    if d > reach:
+                        break
+                    here = gain(g)
+                    if here >= self.CONTINUE_RATIO * reference and fit(g)[1] >= self.CONTINUE_SHIFT_RATIO * max(
+                            fit(g, self.CONTINUE_SHIFT_M)[1], fit(g, -self.CONTINUE_SHIFT_M)[1]):
+                        kept.append(here / reference)
+                        failed, last = 0, t
+                    else:
+                        failed += 1
+                        if failed >= self.CONTINUE_ABSENT_POSES:
+                            break
+                if last is None:
+                    continue
+                a, b = sorted((end, last))
+                for a, b in self._uncovered(line, a, b, drawn):
+                    out.append(MapWall(line["centre"] + a * line["direction"], line["centre"] + b * line["direction"],
+                                       line["normal"].copy(), CLASSES[HIDDEN], 0.5 * min(1.0, float(np.median(kept))),
+                                       len(kept), 0, 0.0, source="continued"))
+        return out
+
+    def _uncovered(self, line, a, b, walls):
+        """The stretches of [a, b] along `line` (wall dict) that no wall of `walls` (MapWalls)
+        on that line covers (within LINE_ANGLE_DEG and line_tolerance_m of it), each
+        VISIBLE_MIN_M or longer."""
+        cos_line = math.cos(math.radians(self.LINE_ANGLE_DEG))
+        cut = []
+        for w in walls:
+            if w.length_m <= 0 or abs(float((w.end_m - w.start_m) @ line["direction"])) < cos_line * w.length_m:
+                continue
+            if max(abs(float((q - line["centre"]) @ line["normal"])) for q in (w.start_m, w.end_m)) > \
+                    self.settings.line_tolerance_m:
+                continue
+            ts = sorted(float((q - line["centre"]) @ line["direction"]) for q in (w.start_m, w.end_m))
+            cut.append(ts)
+        pieces = [(a, b)]
+        for c0, c1 in cut:
+            pieces = [q for p0, p1 in pieces for q in ((p0, min(p1, c0)), (max(p0, c1), p1)) if q[1] > q[0]]
+        return [(p0, p1) for p0, p1 in pieces if p1 - p0 >= self.VISIBLE_MIN_M]
+
     def _corner_at(self, line, t_m, poses):
         """Whether the CSI holds a room's corner on `line` (wall dict) within
         PARTITION_CORNER_M of t_m: a run of per-pose picks that stays put (corner_runs),
@@ -3827,6 +3954,7 @@ def wall_style(source):
     no echo JADE reported); dotted: inferred, not seen (a gap between two pieces, a room
     closed at an end wall)."""
     return {"end_wall": ("-.", ", found on the CSI"), "side_wall": ("-.", ", found on the CSI"),
+            "continued": ("-.", ", found on the CSI"),
             "inferred": (":", ", inferred (not seen)"),
             "partition": ("--", ", partition (its echo's dip)")}.get(source, ("-", ""))
 

@@ -575,15 +575,28 @@ class CsiWallRefiner:
         wall that goes on past its mapped end answers there about as strongly as on its
         mapped part, one that ends does not answer. None when g has no CSI or does not face
         the line."""
+        fitted = self.line_echo(g, wall, exclude)
+        return None if fitted is None else fitted[0]
+
+    def line_echo(self, g, wall, exclude=(), crossing_as=None):
+        """(gain, explained): line_gain's gain, and the energy of group g's CSI that the echo
+        explains, mean over the frames (the gain squared times the projected echo's energy).
+        The gain of a line moved further off grows as its modelled echo weakens; the energy
+        explained does not, and tells which of two parallel lines the data hold. With
+        crossing_as (a mapped hidden wall's index), the echo's legs cross the line-of-sight
+        walls that wall's do, as its fits have them (a wall behind a wall answers later than
+        its own place says: without it the data prefer a line some centimetres further off).
+        None as line_gain."""
         if g not in self.poses or g >= len(self.world_poses):
             return None
         unbounded = dict(wall, t0=-math.inf, t1=math.inf)
         data = self.poses[g]
-        e = self._echo(data, unbounded, self.world_poses[g], lambda spec, pose: [])
+        crossed = (lambda spec, pose: []) if crossing_as is None else self._crossed_for(crossing_as)
+        e = self._echo(data, unbounded, self.world_poses[g], crossed)
         if e is None:
             return None
         fitted = self._gain(data, e[0], self._basis(g, exclude, unexplained_paths=False))
-        return None if fitted is None else fitted[0]
+        return None if fitted is None else (fitted[0], fitted[0] ** 2 * fitted[2])
 
     def material_shift(self, k, material, max_groups=6):
         """How far wall k moves along its normal when its echo is modelled with `material` (a
