@@ -3813,8 +3813,9 @@ class WallFusion:
     #: a line-of-sight wall along the track is drawn on to a line-of-sight wall across the
     #: track past the track's end when its end is at most CLOSE_MAX_M short of it and the
     #: meeting point within CLOSE_ACROSS_MARGIN_M of the wall across's extent
-    #: (_corridors_closed_at_walls_across)
-    CLOSE_MAX_M = 3.5
+    #: (_corridors_closed_at_walls_across; 3.5 m left office_floor seed 2's south wall,
+    #: 3.53 m short of a tilted piece of the west end wall, open)
+    CLOSE_MAX_M = 4.0
     CLOSE_ACROSS_MARGIN_M = 1.0
     #: ...a wall across of at least this confidence (a short spurious piece across, 0.43 on
     #: qa_wall_refinement's brick-wall corridor, does not close a corridor; the office's
