@@ -3373,6 +3373,24 @@ class WallFusion:
     PARTITION_LONE_LINE_M = 4.0
     PARTITION_LONE_DEEP = True
 
+    def _hidden_lines(self, walls_in, wall_cls):
+        """[(pieces, longest, spans)]: the lines of hidden walls (_collinear_groups of
+        walls_in's hidden walls): their indices, the longest one's (whose line stands for the
+        line), and each piece's extent (t0, t1) along that line."""
+        hidden = [k for k, c in enumerate(wall_cls) if c == HIDDEN]
+        out = []
+        for members in self._collinear_groups([walls_in[k] for k in hidden]):
+            pieces = tuple(hidden[i] for i in members)
+            longest = max(pieces, key=lambda k: walls_in[k]["t1"] - walls_in[k]["t0"])
+            line = walls_in[longest]
+            spans = []
+            for k in pieces:
+                ends = [float((walls_in[k]["centre"] + walls_in[k][end] * walls_in[k]["direction"] - line["centre"])
+                              @ line["direction"]) for end in ("t0", "t1")]
+                spans.append((min(ends), max(ends)))
+            out.append((pieces, longest, spans))
+        return out
+
     def _partition_dips(self, state, poses, wall_cls):
         """[(line dict, (n, 2) world points, (n,) deep)]: on each line of hidden walls
         (_collinear_groups), the specular points where its echo all but vanishes, and whether
@@ -3384,18 +3402,15 @@ class WallFusion:
         now and then: a dip bounds a view (_seen_through_doorways), where one too many errs
         toward the wall's own class."""
         walls_in = state["walls"]
-        hidden = [k for k, c in enumerate(wall_cls) if c == HIDDEN]
-        if not hidden:
+        lines = self._hidden_lines(walls_in, wall_cls)
+        if not lines:
             return []
         self._refiner_map(state, poses, wall_cls)  # (as the openings have it)
         out = []
-        for members in self._collinear_groups([walls_in[k] for k in hidden]):
-            pieces = tuple(hidden[i] for i in members)
-            line = walls_in[max(pieces, key=lambda k: walls_in[k]["t1"] - walls_in[k]["t0"])]
+        for pieces, longest, spans in lines:
+            line = walls_in[longest]
             # where its pieces lie (off them, the line is another wall's, or none)
-            ts = [float((walls_in[k]["centre"] + walls_in[k][end] * walls_in[k]["direction"] - line["centre"])
-                        @ line["direction"]) for k in pieces for end in ("t0", "t1")]
-            hull = (min(ts) - self.PARTITION_BEYOND_M, max(ts) + self.PARTITION_BEYOND_M)
+            hull = (min(a for a, _ in spans) - self.PARTITION_BEYOND_M, max(b for _, b in spans) + self.PARTITION_BEYOND_M)
             t, _, ratio = self._gain_profile(line, pieces, poses, hull, 5)
             if t.size < 5:
                 continue
@@ -3510,22 +3525,14 @@ class WallFusion:
         walls on that line (`drawn`, MapWalls) already cover (docs/mapping.md, "Hidden walls
         drawn on")."""
         walls_in = state["walls"]
-        hidden = [k for k, c in enumerate(wall_cls) if c == HIDDEN]
-        if not hidden or len(poses) == 0:
+        lines = [q for q in self._hidden_lines(walls_in, wall_cls)
+                 if walls_in[q[1]]["t1"] - walls_in[q[1]]["t0"] >= self.CONTINUE_MIN_M]
+        if not lines or len(poses) == 0:
             return []
         self._refiner_map(state, poses, wall_cls)
         out = []
-        for members in self._collinear_groups([walls_in[k] for k in hidden]):
-            pieces = tuple(hidden[i] for i in members)
-            longest = max(pieces, key=lambda k: walls_in[k]["t1"] - walls_in[k]["t0"])
+        for pieces, longest, spans in lines:
             line = walls_in[longest]
-            if line["t1"] - line["t0"] < self.CONTINUE_MIN_M:
-                continue
-            spans = []  # each piece's extent along the line
-            for k in pieces:
-                ends = [float((walls_in[k]["centre"] + walls_in[k][end] * walls_in[k]["direction"] - line["centre"])
-                              @ line["direction"]) for end in ("t0", "t1")]
-                spans.append((min(ends), max(ends)))
             beside = sorted(self._specular_along(line, poses))
             fits = {}
 
