@@ -2880,6 +2880,22 @@ class WallFusion:
                               "orientation_lean_deg": math.degrees(float(lean))}
         return ps
 
+    def _collinear_lines(self, walls, tolerance_m=None):
+        """[(members, longest, spans)]: each of _collinear_groups(walls, tolerance_m), the
+        index of its longest wall (whose line stands for the group's), and each member's
+        extent (t0, t1) along that line."""
+        out = []
+        for members in self._collinear_groups(walls, tolerance_m):
+            longest = max(members, key=lambda i: walls[i]["t1"] - walls[i]["t0"])
+            line = walls[longest]
+            spans = []
+            for i in members:
+                w = walls[i]
+                ts = [float((w["centre"] + t * w["direction"] - line["centre"]) @ line["direction"]) for t in (w["t0"], w["t1"])]
+                spans.append((min(ts), max(ts)))
+            out.append((members, longest, spans))
+        return out
+
     def _collinear_groups(self, walls, tolerance_m=None):
         """Groups (lists of indices) of walls on one straight line: orientations within
         LINE_ANGLE_DEG, each end of the nearer piece within tolerance_m (line_tolerance_m
@@ -3264,15 +3280,9 @@ class WallFusion:
         # the side walls (a door may lie where a side wall meets a piece mapped from echoes)
         items = [walls_in[k] for k in los_in] + list(side_walls)
         lines = []  # (line dict, pieces left in for its gain, [(t0, t1) of its members along it])
-        for members in self._collinear_groups(items, self.OPENING_LINE_TOLERANCE_M):
+        for members, longest, spans in self._collinear_lines(items, self.OPENING_LINE_TOLERANCE_M):
             pieces = tuple(los_in[i] for i in members if i < len(los_in))
-            line = items[max(members, key=lambda i: items[i]["t1"] - items[i]["t0"])]
-            spans = []
-            for i in members:
-                w = items[i]
-                ts = [float((w["centre"] + t * w["direction"] - line["centre"]) @ line["direction"]) for t in (w["t0"], w["t1"])]
-                spans.append((min(ts), max(ts)))
-            lines.append((line, pieces, spans, [items[i] for i in members]))
+            lines.append((items[longest], pieces, spans, [items[i] for i in members]))
         found = []
         for line, pieces, spans, members in lines:
             # (t, gain) of the poses whose specular point lies on the line between its mapped
@@ -3374,22 +3384,11 @@ class WallFusion:
     PARTITION_LONE_DEEP = True
 
     def _hidden_lines(self, walls_in, wall_cls):
-        """[(pieces, longest, spans)]: the lines of hidden walls (_collinear_groups of
-        walls_in's hidden walls): their indices, the longest one's (whose line stands for the
-        line), and each piece's extent (t0, t1) along that line."""
+        """[(pieces, longest, spans)]: _collinear_lines of walls_in's hidden walls, by their
+        indices in walls_in."""
         hidden = [k for k, c in enumerate(wall_cls) if c == HIDDEN]
-        out = []
-        for members in self._collinear_groups([walls_in[k] for k in hidden]):
-            pieces = tuple(hidden[i] for i in members)
-            longest = max(pieces, key=lambda k: walls_in[k]["t1"] - walls_in[k]["t0"])
-            line = walls_in[longest]
-            spans = []
-            for k in pieces:
-                ends = [float((walls_in[k]["centre"] + walls_in[k][end] * walls_in[k]["direction"] - line["centre"])
-                              @ line["direction"]) for end in ("t0", "t1")]
-                spans.append((min(ends), max(ends)))
-            out.append((pieces, longest, spans))
-        return out
+        return [(tuple(hidden[i] for i in members), hidden[longest], spans)
+                for members, longest, spans in self._collinear_lines([walls_in[k] for k in hidden])]
 
     def _partition_dips(self, state, poses, wall_cls):
         """[(line dict, (n, 2) world points, (n,) deep)]: on each line of hidden walls
