@@ -3533,14 +3533,11 @@ class WallFusion:
         for pieces, longest, spans in lines:
             line = walls_in[longest]
             beside = sorted(self._specular_along(line, poses))
-            fits = {}
 
             def fit(g, shift_m=0.0):  # (gain, energy explained) of the line moved shift_m toward the robot
-                if (g, shift_m) not in fits:
-                    moved = dict(line, centre=line["centre"] + shift_m * line["normal"])
-                    v = self._line_echo(g, moved, pieces, poses, longest)
-                    fits[g, shift_m] = v if v is not None and all(map(math.isfinite, v)) else (0.0, 0.0)
-                return fits[g, shift_m]
+                moved = dict(line, centre=line["centre"] + shift_m * line["normal"])
+                v = self._line_echo(g, moved, pieces, poses, longest)  # (cached there)
+                return v if v is not None and all(map(math.isfinite, v)) else (0.0, 0.0)
 
             def gain(g):
                 return fit(g)[0]
