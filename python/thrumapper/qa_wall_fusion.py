@@ -602,6 +602,80 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, [side]), {0: 0, 1: 0, 2: 0})
         self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, []), {})
 
+    def test_side_wall_search_follows_its_peak(self):
+        """A corridor 2 m wide (faces at y = -1 and +1) driven along y = 0, its south wall
+        mapped 0.3 m too near, at y = -0.7 (the uncancelled direct path pulls the fits short).
+        The side-wall search's window, around the delay of the mapped wall, then reaches
+        only to about 0.95 m across the track, short of the north wall; a stand-in refiner
+        scores the hypotheses with a smooth peak at the true face. Refused at the window's
+        edge with SIDE_WALL_WINDOW_SHIFTS = 0; with the window moved on, the north wall is
+        found at y = +1.0 facing south. The window moves outward only (the fits' errors put
+        walls nearer the robot, not farther): with the south wall mapped 0.3 m too far the
+        peak lies at the window's near edge, and is refused."""
+        poses = straight_poses(0.0, 10.0)
+
+        def corridor(south_y):
+            south = {"centre": np.array([5.0, south_y]), "normal": np.array([0.0, 1.0]),
+                     "direction": np.array([1.0, 0.0]), "t0": -5.0, "t1": 5.0, "members": np.arange(poses.shape[0])}
+            return {"walls": [south], "group": np.arange(poses.shape[0])}
+
+        class Scores:
+            def __init__(self, count):
+                self.poses, self.windows = set(range(count)), []
+
+            def sees(self, g, k):
+                return True
+
+            def side_wall_scores(self, point, toward, offsets_t, groups, tilts_rad):
+                across = point[1] + offsets_t * toward[1]  # the hypotheses' y where they cross x = 5
+                parallel = int(np.argmin(np.abs(tilts_rad)))
+                self.windows.append((float(across[parallel, 0]), float(across[parallel, -1])))
+                scores = 100.0 - 400.0 * (across - 1.0) ** 2 - 50.0 * np.abs(np.asarray(tilts_rad))[:, None]
+                return np.maximum(scores, 0.0), np.ones(offsets_t.shape), 200.0
+
+        def side_walls(shifts, south_y=-0.7):
+            fusion = WallFusion(RADAR, exact_settings())
+            fusion.SIDE_WALL_WINDOW_SHIFTS = shifts
+            fusion.refiner = Scores(poses.shape[0])
+            fusion._refiner_map = lambda *args, **kwargs: None
+            return fusion._side_walls(corridor(south_y), poses, [LOS]), fusion.refiner.windows
+
+        found, windows = side_walls(0)
+        self.assertEqual(found, [])
+        self.assertEqual(len(windows), 1)
+        self.assertLess(windows[0][1], 1.0 - 0.02)  # the first window stops short of the face
+        (north,), windows = side_walls(2)
+        self.assertGreater(len(windows), 1)
+        self.assertAlmostEqual(float(north["centre"][1]), 1.0, delta=0.005)
+        np.testing.assert_allclose(north["normal"], [0.0, -1.0], atol=1e-9)
+        found, windows = side_walls(2, south_y=-1.3)
+        self.assertEqual(found, [])
+        self.assertEqual(len(windows), 1)
+        self.assertGreater(windows[0][0], 1.0 + 0.02)  # the window starts beyond the face
+
+    def test_direct_path_leak_modelled_only_where_strong(self):
+        """The fusion keeps the refiner's estimate of the direct path's leak only when it
+        holds at least DIRECT_LEAK_MIN_DB of the data (a weaker estimate is mostly the
+        corridor walls' own echo): a stand-in refiner answering -5 dB keeps it, -15 dB or no
+        estimate has it forgotten."""
+        class Leak:
+            def __init__(self, leak_db):
+                self.leak_db, self.forgotten = leak_db, False
+
+            def estimate_direct_leak(self):
+                return self.leak_db
+
+            def forget_direct_leak(self):
+                self.forgotten = True
+
+        fusion = WallFusion(RADAR, exact_settings())
+        self.assertLess(fusion.DIRECT_LEAK_MIN_DB, -5.0)
+        self.assertGreater(fusion.DIRECT_LEAK_MIN_DB, -15.0)
+        for leak_db, forgotten in ((-5.0, False), (-15.0, True), (None, True)):
+            fusion.refiner = Leak(leak_db)
+            self.assertEqual(fusion._model_direct_leak(), leak_db)
+            self.assertEqual(fusion.refiner.forgotten, forgotten, leak_db)
+
     def test_wall_across_farther_out_leaves_the_side_wall_search_its_poses(self):
         """The side-wall search looks, from a line-of-sight wall 1 m south of the track, for a
         wall of the same delay across the track. A mapped wall across 3.3 m out (a room's

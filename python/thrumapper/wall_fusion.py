@@ -659,11 +659,17 @@ class WallFusion:
     """
 
     #: the CSI fits model what the TX chains' errors leave of the direct path, estimated once
-    #: per map on the first map's walls (CsiWallRefiner.estimate_direct_leak): off, because
-    #: the map is not better for it yet, though the fits on the true map are, and on the
-    #: fusion's own map the estimate is right only where the leak is strong (docs/mapping.md,
-    #: "Two errors of the echo model")
-    ESTIMATE_DIRECT_LEAK = False
+    #: per map on the first map's walls (CsiWallRefiner.estimate_direct_leak; docs/mapping.md,
+    #: "Two errors of the echo model")...
+    ESTIMATE_DIRECT_LEAK = True
+    #: ...where the estimate holds at least this share of the data's energy, dB (_model_direct
+    #: _leak). On the fusion's own map the estimate is right only where the leak is strong:
+    #: office surveys whose TX chains leave 4-7 dB below the data read within 1 dB of it (their
+    #: corridor walls' fits 10-17 cm short without it); those that leave 19-26 dB read 11-15 dB,
+    #: the rest being the corridor walls' own echo, nearly the same at every pose of a straight
+    #: corridor, which projecting it out would take away (docs/mapping.md, "The direct path's
+    #: leak, where it is strong")
+    DIRECT_LEAK_MIN_DB = -9.0
     #: the sequential pose pass aligns an echo with its predecessors' echoes this close
     SEQUENTIAL_REACH_M = 4.0
     #: ...and uses only echoes this close to the robot
@@ -784,6 +790,10 @@ class WallFusion:
     SIDE_WALL_MAX_M = 3.0
     SIDE_WALL_STEP_M = 0.025
     SIDE_WALL_COHERENT_S = 1.5e-9
+    #: ...a window whose best hypothesis lies at its far edge moved outward by half its width,
+    #: up to this many times (0: refused there): wall k mapped nearer than it stands moves the
+    #: window in by as much (docs/mapping.md, "The direct path's leak, where it is strong")
+    SIDE_WALL_WINDOW_SHIFTS = 2
     #: a mapped wall across takes a pose from the search only when it answers no later than
     #: this after the wall searched along (_partner_echo; None: any wall across takes it)
     SIDE_WALL_BLOCK_S = 3e-9
@@ -1379,7 +1389,7 @@ class WallFusion:
         self._refiner_map(state, poses, wall_cls)
         if self.ESTIMATE_DIRECT_LEAK and not self._leak_estimated:
             # once, on the first map: it is the same at every pose and for the whole survey
-            self._direct_leak_db = self.refiner.estimate_direct_leak()
+            self._direct_leak_db = self._model_direct_leak()
             self._leak_estimated = True
         labels = state["labels"]
         group = det["group"]
@@ -1394,6 +1404,16 @@ class WallFusion:
                 d_aoa[i] = _wrap(det["aoa"][i] - fit[0])  # removed by _geometry
                 d_delay[i] = det["delay"][i] - fit[1]
         return d_aoa, d_delay
+
+    def _model_direct_leak(self):
+        """Estimate the direct path's leak on the refiner's map (CsiWallRefiner.
+        estimate_direct_leak) and keep it modelled in the fits only when it holds at least
+        DIRECT_LEAK_MIN_DB of the data: a weaker estimate is mostly the corridor walls' own
+        echo, and projecting it out would take theirs with it. Returns the estimate, dB."""
+        leak_db = self.refiner.estimate_direct_leak()
+        if leak_db is None or leak_db < self.DIRECT_LEAK_MIN_DB:
+            self.refiner.forget_direct_leak()
+        return leak_db
 
     #: a wall is drawn in pieces of each class where the echoes of at least this many
     #: consecutive poses along it are of the class its majority is not (_class_pieces; 0: never)
@@ -2113,7 +2133,9 @@ class WallFusion:
         SIDE_WALL_STEP_M and SIDE_WALL_TILT_STEP_DEG and scored on those poses' CSI with
         everything mapped projected out (CsiWallRefiner.side_wall_scores), only where its echo
         would come within SIDE_WALL_COHERENT_S of wall k's at the stretch's middle pose, and
-        taken at a peak inside the search (in distance and in tilt) that explains
+        taken at a peak inside the search (in distance and in tilt; a window whose best
+        hypothesis lies at its far edge moves outward by half its width, up to
+        SIDE_WALL_WINDOW_SHIFTS times, as far as SIDE_WALL_MAX_M allows) that explains
         END_WALL_SIGNIFICANCE times what white noise would and SIDE_WALL_MIN_SHARE of what the
         mapped walls leave. Returns dicts: centre, normal, direction, t0, t1 (world), corners
         (none), poses, groups, confidence."""
@@ -2178,6 +2200,21 @@ class WallFusion:
                 offsets_t = mid_distance + ranges[None, :] / np.cos(np.radians(tilts_deg))[:, None]
                 scores_t, noise_t, residual = self.refiner.side_wall_scores(foot, w["normal"], offsets_t, run,
                                                                             np.radians(tilts_deg))
+                # a partner whose score still rises at the window's far edge stands beyond it:
+                # wall k mapped nearer than it stands moves the window in by as much (its echo
+                # and the partner's are one delay only at the true distances), and the fits'
+                # errors put walls nearer, not farther (the direct path's leak, the double
+                # bounces), so the window follows the rise outward by half its width, up to
+                # SIDE_WALL_WINDOW_SHIFTS times; a peak at the near edge is refused as before
+                for _ in range(self.SIDE_WALL_WINDOW_SHIFTS):
+                    edge = int(np.unravel_index(int(np.argmax(scores_t)), scores_t.shape)[1])
+                    half = 0.5 * (ranges[-1] - ranges[0])
+                    if edge != ranges.size - 1 or ranges[-1] + half > self.SIDE_WALL_MAX_M:
+                        break
+                    ranges = ranges + half
+                    offsets_t = mid_distance + ranges[None, :] / np.cos(np.radians(tilts_deg))[:, None]
+                    scores_t, noise_t, residual = self.refiner.side_wall_scores(foot, w["normal"], offsets_t, run,
+                                                                                np.radians(tilts_deg))
                 grid = list(zip(scores_t, noise_t, offsets_t))
 
                 def accepted(t, i, share):
@@ -2523,6 +2560,7 @@ class WallFusion:
             result.stats.update(self._odometry_fit)
         if self._leak_estimated:
             result.stats["direct_leak_db"] = self._direct_leak_db
+            result.stats["direct_leak_modelled"] = self.refiner.direct_leak_modelled()
         result.stats["fusion_phases_s"] = dict(self._phase_s)
         result.stats["elapsed_s"] = time.perf_counter() - started
         return result

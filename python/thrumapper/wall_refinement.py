@@ -455,6 +455,15 @@ class CsiWallRefiner:
                 data_energy += float(np.sum(np.abs(data.rows) ** 2))
         return 10.0 * math.log10(max(leak_energy, 1e-300) / data_energy) if data_energy > 0 else None
 
+    def forget_direct_leak(self):
+        """The fits go back to the nominal direct path alone (estimate_direct_leak undone)."""
+        for data in self.poses.values():
+            data.leak = None
+
+    def direct_leak_modelled(self):
+        """Whether the fits model a direct-path leak (estimate_direct_leak, not forgotten)."""
+        return any(data.leak is not None for data in self.poses.values())
+
     def _fit(self, k, groups, pivot, step_m, step_deg, base=None, bases=None, crossed=None, material=None):
         """(offset, rotation, moved wall) maximising J over these groups for wall k, moved
         from `base` (default: the map's wall k), against `bases` (per group; default: every
