@@ -657,12 +657,14 @@ class qa_wall_fusion(gr_unittest.TestCase):
         """The fusion keeps the refiner's estimate of the direct path's leak only when it
         holds at least DIRECT_LEAK_MIN_DB of the data (a weaker estimate is mostly the
         corridor walls' own echo): a stand-in refiner answering -5 dB keeps it, -15 dB or no
-        estimate has it forgotten."""
+        estimate has it forgotten. On a track shorter than DIRECT_LEAK_MIN_TRACK_M (every
+        wall's echo there nearly the same at every pose, as the leak is) none is estimated."""
         class Leak:
             def __init__(self, leak_db):
-                self.leak_db, self.forgotten = leak_db, False
+                self.leak_db, self.forgotten, self.estimated = leak_db, False, False
 
             def estimate_direct_leak(self):
+                self.estimated = True
                 return self.leak_db
 
             def forget_direct_leak(self):
@@ -671,10 +673,17 @@ class qa_wall_fusion(gr_unittest.TestCase):
         fusion = WallFusion(RADAR, exact_settings())
         self.assertLess(fusion.DIRECT_LEAK_MIN_DB, -5.0)
         self.assertGreater(fusion.DIRECT_LEAK_MIN_DB, -15.0)
+        long_track = straight_poses(0.0, 20.0)
+        self.assertGreaterEqual(long_track[-1, 0] - long_track[0, 0], fusion.DIRECT_LEAK_MIN_TRACK_M)
         for leak_db, forgotten in ((-5.0, False), (-15.0, True), (None, True)):
             fusion.refiner = Leak(leak_db)
-            self.assertEqual(fusion._model_direct_leak(), leak_db)
+            self.assertEqual(fusion._model_direct_leak(long_track), leak_db)
             self.assertEqual(fusion.refiner.forgotten, forgotten, leak_db)
+        short_track = straight_poses(0.0, 0.5 * fusion.DIRECT_LEAK_MIN_TRACK_M)
+        fusion.refiner = Leak(-5.0)
+        self.assertIsNone(fusion._model_direct_leak(short_track))
+        self.assertFalse(fusion.refiner.estimated)
+        self.assertTrue(fusion.refiner.forgotten)
 
     def test_wall_across_farther_out_leaves_the_side_wall_search_its_poses(self):
         """The side-wall search looks, from a line-of-sight wall 1 m south of the track, for a

@@ -670,6 +670,9 @@ class WallFusion:
     #: corridor, which projecting it out would take away (docs/mapping.md, "The direct path's
     #: leak, where it is strong")
     DIRECT_LEAK_MIN_DB = -9.0
+    #: ...and estimated only on a track at least this long: office_floor's own seed (its
+    #: leak -26 dB) reads -6.8 dB over its first 2 m, -8.8 dB over 4 m, -11.7 dB over 8 m
+    DIRECT_LEAK_MIN_TRACK_M = 8.0
     #: the sequential pose pass aligns an echo with its predecessors' echoes this close
     SEQUENTIAL_REACH_M = 4.0
     #: ...and uses only echoes this close to the robot
@@ -1389,7 +1392,7 @@ class WallFusion:
         self._refiner_map(state, poses, wall_cls)
         if self.ESTIMATE_DIRECT_LEAK and not self._leak_estimated:
             # once, on the first map: it is the same at every pose and for the whole survey
-            self._direct_leak_db = self._model_direct_leak()
+            self._direct_leak_db = self._model_direct_leak(poses)
             self._leak_estimated = True
         labels = state["labels"]
         group = det["group"]
@@ -1405,12 +1408,16 @@ class WallFusion:
                 d_delay[i] = det["delay"][i] - fit[1]
         return d_aoa, d_delay
 
-    def _model_direct_leak(self):
+    def _model_direct_leak(self, poses):
         """Estimate the direct path's leak on the refiner's map (CsiWallRefiner.
         estimate_direct_leak) and keep it modelled in the fits only when it holds at least
         DIRECT_LEAK_MIN_DB of the data: a weaker estimate is mostly the corridor walls' own
-        echo, and projecting it out would take theirs with it. Returns the estimate, dB."""
-        leak_db = self.refiner.estimate_direct_leak()
+        echo, and projecting it out would take theirs with it. Not on a track shorter than
+        DIRECT_LEAK_MIN_TRACK_M: there every wall's echo is nearly the same at every pose,
+        as the leak is. Returns the estimate, dB (None when none was made)."""
+        leak_db = None
+        if len(poses) and _path_length(np.asarray(poses))[-1] >= self.DIRECT_LEAK_MIN_TRACK_M:
+            leak_db = self.refiner.estimate_direct_leak()
         if leak_db is None or leak_db < self.DIRECT_LEAK_MIN_DB:
             self.refiner.forget_direct_leak()
         return leak_db
