@@ -253,6 +253,11 @@ def main(argv=None):
           f"{st['corners']} corners, {st.get('openings', 0)} open doorways ({st['ghosts']} ghost echoes, {st['skipped_early']} early, "
           f"{st['skipped_nonfinite']} non-finite skipped) in {elapsed:.1f} s "
           f"({elapsed / max(st['poses'], 1):.3f} s/pose)", file=sys.stderr)
+    if st.get("direct_leak_modelled"):
+        # worth knowing on the radio's side: the TX chains' errors fill the null toward the RX
+        print(f"thrumapper-map: the TX chains leave the direct path at {st['direct_leak_db']:.1f} dB of the data "
+              f"after the nominal one is cancelled; modelled in the CSI fits (calibrating the TX chains removes it)",
+              file=sys.stderr)
     for path in written:
         print(path)
     return 0
