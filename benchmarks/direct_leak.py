@@ -1,0 +1,132 @@
+#!/usr/bin/python3
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""The direct path the TX chains' errors leave: the simulator's against the fusion's estimate.
+
+The survey calibrates the RX chains only. Each TX chain's small gain and phase error a_k fills
+the null the TX weights steer toward the RX, and cancelling the nominal direct path leaves
+sum_k w_k (a_k - 1) d_k in the data (d_k: element k's direct path), the same at every pose.
+The fusion estimates it on its first map (CsiWallRefiner.estimate_direct_leak) and models it in
+the CSI fits only where the estimate holds at least WallFusion.DIRECT_LEAK_MIN_DB of the data
+and the track is at least WallFusion.DIRECT_LEAK_MIN_TRACK_M long (docs/mapping.md, "The
+direct path's leak, where it is strong").
+
+For each seed this simulates the scene (thrumapper-sim --seed; reused from OUT/SCENE-SEED/),
+maps it as thrumapper-map does (cli_map.map_survey) and prints, in dB of the data's energy:
+
+- truth: the leak the simulator's drawn TX chain gains leave, computed from the scene's
+  impairments and the refiner's element direct paths, less its part along the nominal path;
+- estimate: the fusion's (stats direct_leak_db), and whether the fits model it;
+- first N m: the estimate a map of the track's first N metres alone makes (what a live map
+  makes early in a survey; --spans), with the minimum track length lifted for it: how much of
+  the corridor walls' echo a short track takes for leak.
+
+Usage: benchmarks/direct_leak.py [--out DIR] [--scene office_floor] [--seeds own 1 2 ...] [--spans 2 4 8]
+       (PYTHONPATH=build/test_modules, or the module installed; a few minutes a seed)
+"""
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import contextlib  # noqa: E402
+import io  # noqa: E402
+import math  # noqa: E402
+import sys  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from gnuradio.thrumapper import building_sim, cli_map, cli_sim, jade_pipeline, rx_calibration  # noqa: E402
+from gnuradio.thrumapper import scene as scene_mod  # noqa: E402
+from gnuradio.thrumapper.survey import read_survey  # noqa: E402
+from gnuradio.thrumapper.wall_fusion import FusionSettings, RadarGeometry, WallFusion, _path_length  # noqa: E402
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+SCENES_DIR = os.path.join(HERE, "..", "examples", "scenes")
+# the office scenes' survey does not state its system delay, and the TX null hides the
+# direct path it would be measured on (docs/mapping.md)
+SYSTEM_DELAY_S = {"office_floor": 31e-9, "office_floor_drift": 31e-9}
+
+
+def true_leak_db(refiner, scene):
+    """The simulator's leak over the data's energy, dB, on the refiner's pose groups."""
+    directs = refiner._element_directs()  # (M*N, K), unit TX weight each
+    alpha = building_sim.chain_gains(scene.impairments["tx"], refiner.freqs_hz)  # (K, N)
+    k, n = alpha.shape
+    m = directs.shape[0] // n
+    per_element = directs.reshape(m, n, k)
+    leak_energy = data_energy = 0.0
+    for data in refiner.poses.values():
+        leak = np.einsum("mnk,k,kn->mn", per_element, data.model.weights, alpha - 1.0).ravel()
+        unit = data.direct / np.linalg.norm(data.direct)
+        leak = leak - unit * np.vdot(unit, leak)
+        leak_energy += float(np.vdot(leak, leak).real) * data.rows.shape[0]
+        data_energy += float(np.sum(np.abs(data.rows) ** 2))
+    return 10.0 * math.log10(leak_energy / data_energy) if leak_energy > 0 else -math.inf
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="\n\n".join(__doc__.split("\n\n")[1:]))
+    parser.add_argument("--out", default="out/direct_leak", help="where the simulated surveys are kept")
+    parser.add_argument("--scene", default="office_floor", help="example scene name (examples/scenes/NAME.yaml)")
+    parser.add_argument("--seeds", nargs="+", default=["own", "1", "2", "3"],
+                        help="seeds to simulate the scene with ('own': the scene's)")
+    parser.add_argument("--spans", nargs="*", type=float, default=[2.0, 4.0, 8.0],
+                        help="also estimate over the track's first N metres only")
+    args = parser.parse_args(argv)
+    scene_path = os.path.join(SCENES_DIR, args.scene + ".yaml")
+    if not os.path.exists(scene_path):
+        parser.error(f"--scene: no scene {scene_path}")
+    spans = sorted(set(args.spans))
+    print(f"| seed | truth dB | estimate dB | modelled | " + " | ".join(f"first {s:g} m" for s in spans) + " |")
+    print("|---|---|---|---|" + "---|" * len(spans))
+    for seed in args.seeds:
+        number = None if seed == "own" else int(seed)
+        out = os.path.join(args.out, f"{args.scene}-{seed}")
+        meta = os.path.join(out, args.scene + ".sigmf-meta")
+        if not os.path.exists(meta):
+            with contextlib.redirect_stdout(io.StringIO()):
+                cli_sim.main([scene_path, "--out", out, "--quiet"] + ([] if number is None else ["--seed", str(number)]))
+        survey = read_survey(meta)
+        scene = scene_mod.load_scene(scene_path, seed=number)
+        # as thrumapper-map does (cli_map.map_survey), the JADE results kept for the spans
+        work = rx_calibration.calibrated_survey(survey, rx_calibration.calibrate_survey(survey))
+        delay_s = SYSTEM_DELAY_S.get(args.scene, survey.system_delay_s)
+        if delay_s is None:
+            delay_s = jade_pipeline.estimate_system_delay(work, jade_pipeline.group_frames_by_pose(work))
+        results = [(r["pose"], r["paths"], r["frames"][0], r.get("csi"), r.get("tx_weights"))
+                   for r in jade_pipeline.run_survey(work, cli_map.jade_settings(), delay_s, None, keep_csi=True)]
+
+        def fused_map(count, min_track_m=None):
+            fusion = WallFusion(RadarGeometry.from_survey(survey), FusionSettings(material="plasterboard"))
+            if min_track_m is not None:
+                fusion.DIRECT_LEAK_MIN_TRACK_M = min_track_m
+            fusion.enable_csi_refinement(delay_s)
+            for result in results[:count]:
+                fusion.add(*result)
+            return fusion, fusion.build_map()
+
+        fusion, fused = fused_map(len(results))
+        truth = true_leak_db(fusion.refiner, scene)
+        estimate = fused.stats.get("direct_leak_db")
+        modelled = fused.stats.get("direct_leak_modelled", False)
+        travelled = _path_length(np.array([r[0] for r in results], float))
+        firsts = []
+        for span in spans:
+            count = int(np.count_nonzero(travelled <= span + 1e-9))
+            firsts.append(fused_map(count, 0.0)[1].stats.get("direct_leak_db") if count >= 2 else None)
+
+        def db(value):
+            return "–" if value is None else f"{value:.1f}"
+
+        print(f"| {seed} | {db(truth)} | {db(estimate)} | {'yes' if modelled else 'no'} | " +
+              " | ".join(db(v) for v in firsts) + " |", flush=True)
+    print(f"\nmodelled where the estimate is at least {WallFusion.DIRECT_LEAK_MIN_DB:g} dB on a track of at least "
+          f"{WallFusion.DIRECT_LEAK_MIN_TRACK_M:g} m", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
