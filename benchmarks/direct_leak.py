@@ -11,7 +11,8 @@ and the track is at least WallFusion.DIRECT_LEAK_MIN_TRACK_M long (docs/mapping.
 direct path's leak, where it is strong").
 
 For each seed this simulates the scene (thrumapper-sim --seed; reused from OUT/SCENE-SEED/),
-maps it as thrumapper-map does (cli_map.map_survey) and prints, in dB of the data's energy:
+maps it as thrumapper-map does with its default options (cli_map.map_survey) and prints, in
+dB of the data's energy:
 
 - truth: the leak the simulator's drawn TX chain gains leave, computed from the scene's
   impairments and the refiner's element direct paths, less its part along the nominal path;
@@ -30,16 +31,17 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import contextlib  # noqa: E402
+import dataclasses  # noqa: E402
 import io  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from gnuradio.thrumapper import building_sim, cli_map, cli_sim, jade_pipeline, rx_calibration  # noqa: E402
+from gnuradio.thrumapper import building_sim, cli_map, cli_sim  # noqa: E402
 from gnuradio.thrumapper import scene as scene_mod  # noqa: E402
 from gnuradio.thrumapper.survey import read_survey  # noqa: E402
-from gnuradio.thrumapper.wall_fusion import FusionSettings, RadarGeometry, WallFusion, _path_length  # noqa: E402
+from gnuradio.thrumapper.wall_fusion import FusionSettings, WallFusion, _path_length  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCENES_DIR = os.path.join(HERE, "..", "examples", "scenes")
@@ -79,6 +81,8 @@ def main(argv=None):
     scene_path = os.path.join(SCENES_DIR, args.scene + ".yaml")
     if not os.path.exists(scene_path):
         parser.error(f"--scene: no scene {scene_path}")
+    if any(seed != "own" and not seed.isdigit() for seed in args.seeds):
+        parser.error(f"--seeds: expected 'own' or whole numbers, got {' '.join(args.seeds)}")
     spans = sorted(set(args.spans))
     print(f"| seed | truth dB | estimate dB | modelled | " + " | ".join(f"first {s:g} m" for s in spans) + " |")
     print("|---|---|---|---|" + "---|" * len(spans))
@@ -91,32 +95,25 @@ def main(argv=None):
                 cli_sim.main([scene_path, "--out", out, "--quiet"] + ([] if number is None else ["--seed", str(number)]))
         survey = read_survey(meta)
         scene = scene_mod.load_scene(scene_path, seed=number)
-        # as thrumapper-map does (cli_map.map_survey), the JADE results kept for the spans
-        work = rx_calibration.calibrated_survey(survey, rx_calibration.calibrate_survey(survey))
-        delay_s = SYSTEM_DELAY_S.get(args.scene, survey.system_delay_s)
-        if delay_s is None:
-            delay_s = jade_pipeline.estimate_system_delay(work, jade_pipeline.group_frames_by_pose(work))
-        results = [(r["pose"], r["paths"], r["frames"][0], r.get("csi"), r.get("tx_weights"))
-                   for r in jade_pipeline.run_survey(work, cli_map.jade_settings(), delay_s, None, keep_csi=True)]
-
-        def fused_map(count, min_track_m=None):
-            fusion = WallFusion(RadarGeometry.from_survey(survey), FusionSettings(material="plasterboard"))
-            if min_track_m is not None:
-                fusion.DIRECT_LEAK_MIN_TRACK_M = min_track_m
-            fusion.enable_csi_refinement(delay_s)
-            for result in results[:count]:
-                fusion.add(*result)
-            return fusion, fusion.build_map()
-
-        fusion, fused = fused_map(len(results))
+        fused, info = cli_map.map_survey(survey, FusionSettings(material="plasterboard"), None,
+                                         SYSTEM_DELAY_S.get(args.scene), keep_results=True)
+        fusion, results = info["fusion"], info["jade_results"]
         truth = true_leak_db(fusion.refiner, scene)
         estimate = fused.stats.get("direct_leak_db")
         modelled = fused.stats.get("direct_leak_modelled", False)
+
+        def first_leak_db(count):
+            """The estimate of a map of the first `count` pose groups alone, at any length."""
+            part = WallFusion(fusion.radar, dataclasses.replace(fusion.settings))
+            part.DIRECT_LEAK_MIN_TRACK_M = 0.0
+            part.enable_csi_refinement(info["system_delay_s"])
+            for result in results[:count]:
+                part.add(*result)
+            return part.build_map().stats.get("direct_leak_db")
+
         travelled = _path_length(np.array([r[0] for r in results], float))
-        firsts = []
-        for span in spans:
-            count = int(np.count_nonzero(travelled <= span + 1e-9))
-            firsts.append(fused_map(count, 0.0)[1].stats.get("direct_leak_db") if count >= 2 else None)
+        counts = [int(np.count_nonzero(travelled <= span + 1e-9)) for span in spans]
+        firsts = [first_leak_db(count) if count >= 2 else None for count in counts]
 
         def db(value):
             return "–" if value is None else f"{value:.1f}"

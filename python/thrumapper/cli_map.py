@@ -140,11 +140,13 @@ def jade_settings(paths=8, stages=1, max_delay_s=60e-9, angles=360, delays=240):
 
 
 def map_survey(survey, fusion_settings=None, settings=None, system_delay_s=None, progress=None, timings=None,
-               refine_on_csi=True):
+               refine_on_csi=True, keep_results=False):
     """The whole chain on a read survey: RX calibration, JADE, wall fusion. Returns
     (FusedMap, info dict; info["fusion"] is the WallFusion, its CSI refiner holding the last
-    map, for scripts that go on from it). The wall model comes from the survey when it has
-    one, overriding fusion_settings.material."""
+    map, for scripts that go on from it; with keep_results, info["jade_results"] the
+    arguments WallFusion.add was given for each pose group, in order, for scripts that map
+    part of the survey again). The wall model comes from the survey when it has one,
+    overriding fusion_settings.material."""
     from . import jade_pipeline, rx_calibration
     from .wall_fusion import FusionSettings, RadarGeometry, WallFusion
 
@@ -173,8 +175,12 @@ def map_survey(survey, fusion_settings=None, settings=None, system_delay_s=None,
     groups = 0
     if refine_on_csi:
         fusion.enable_csi_refinement(info["system_delay_s"])
+    kept = info["jade_results"] = [] if keep_results else None
     for result in jade_pipeline.run_survey(work, settings, system_delay_s, progress, keep_csi=refine_on_csi):
-        fusion.add(result["pose"], result["paths"], result["frames"][0], result.get("csi"), result.get("tx_weights"))
+        added = (result["pose"], result["paths"], result["frames"][0], result.get("csi"), result.get("tx_weights"))
+        fusion.add(*added)
+        if kept is not None:
+            kept.append(added)
         groups += 1
     timings["jade_s"] = time.perf_counter() - started
     if groups == 0:

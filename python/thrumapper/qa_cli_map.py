@@ -153,8 +153,12 @@ class qa_cli_map(gr_unittest.TestCase):
         to give instead."""
         ones_meta, _, _ = write(corridor_scene("ones", impaired=False, known_delay=False, walls=False),
                                 self.tmp.name, "ones")
-        fused, info = cli_map.map_survey(survey.read_survey(ones_meta), settings=cli_map.jade_settings(paths=4))
+        fused, info = cli_map.map_survey(survey.read_survey(ones_meta), settings=cli_map.jade_settings(paths=4),
+                                         keep_results=True)
         self.assertEqual(info["system_delay"], "measured on the direct path")
+        # what WallFusion.add was given, a pose group each, for scripts that map part again
+        self.assertEqual(len(info["jade_results"]), fused.stats["poses"])
+        np.testing.assert_array_equal([r[0] for r in info["jade_results"]], fused.odometry)
         self.assertAlmostEqual(info["system_delay_s"], 27e-9, delta=0.02e-9)
         self.assertEqual(fused.walls, [])
         evaluation.load_map(fused.to_geojson())

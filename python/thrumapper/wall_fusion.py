@@ -2204,9 +2204,13 @@ class WallFusion:
                 mid = robot[run[len(run) // 2]]
                 foot = mid - float((mid - w["centre"]) @ w["normal"]) * w["normal"]
                 mid_distance = float(distance.mean())
-                offsets_t = mid_distance + ranges[None, :] / np.cos(np.radians(tilts_deg))[:, None]
-                scores_t, noise_t, residual = self.refiner.side_wall_scores(foot, w["normal"], offsets_t, run,
-                                                                            np.radians(tilts_deg))
+
+                def scored(ranges):
+                    offsets_t = mid_distance + ranges[None, :] / np.cos(np.radians(tilts_deg))[:, None]
+                    return (offsets_t,) + tuple(self.refiner.side_wall_scores(foot, w["normal"], offsets_t, run,
+                                                                              np.radians(tilts_deg)))
+
+                offsets_t, scores_t, noise_t, residual = scored(ranges)
                 # a partner whose score still rises at the window's far edge stands beyond it:
                 # wall k mapped nearer than it stands moves the window in by as much (its echo
                 # and the partner's are one delay only at the true distances), and the fits'
@@ -2219,9 +2223,7 @@ class WallFusion:
                     if edge != ranges.size - 1 or ranges[-1] + half > self.SIDE_WALL_MAX_M:
                         break
                     ranges = ranges + half
-                    offsets_t = mid_distance + ranges[None, :] / np.cos(np.radians(tilts_deg))[:, None]
-                    scores_t, noise_t, residual = self.refiner.side_wall_scores(foot, w["normal"], offsets_t, run,
-                                                                                np.radians(tilts_deg))
+                    offsets_t, scores_t, noise_t, residual = scored(ranges)
                 grid = list(zip(scores_t, noise_t, offsets_t))
 
                 def accepted(t, i, share):
