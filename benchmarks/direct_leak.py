@@ -30,25 +30,18 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import contextlib  # noqa: E402
 import dataclasses  # noqa: E402
-import io  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from gnuradio.thrumapper import building_sim, cli_map, cli_sim  # noqa: E402
+from gnuradio.thrumapper import building_sim, cli_map  # noqa: E402
 from gnuradio.thrumapper import scene as scene_mod  # noqa: E402
 from gnuradio.thrumapper.survey import read_survey  # noqa: E402
 from gnuradio.thrumapper.wall_fusion import FusionSettings, WallFusion, _path_length  # noqa: E402
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-SCENES_DIR = os.path.join(HERE, "..", "examples", "scenes")
-# the office scenes' survey does not state its system delay, and the TX null hides the
-# direct path it would be measured on (docs/mapping.md)
-SYSTEM_DELAY_S = {"office_floor": 31e-9, "office_floor_drift": 31e-9}
-
+import office_surveys  # noqa: E402
 
 def true_leak_db(refiner, scene):
     """The simulator's leak over the data's energy, dB, on the refiner's pose groups."""
@@ -71,32 +64,20 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
                                      epilog="\n\n".join(__doc__.split("\n\n")[1:]))
-    parser.add_argument("--out", default="out/direct_leak", help="where the simulated surveys are kept")
-    parser.add_argument("--scene", default="office_floor", help="example scene name (examples/scenes/NAME.yaml)")
-    parser.add_argument("--seeds", nargs="+", default=["own", "1", "2", "3"],
-                        help="seeds to simulate the scene with ('own': the scene's)")
+    office_surveys.add_arguments(parser, "out/direct_leak")
     parser.add_argument("--spans", nargs="*", type=float, default=[2.0, 4.0, 8.0],
                         help="also estimate over the track's first N metres only")
     args = parser.parse_args(argv)
-    scene_path = os.path.join(SCENES_DIR, args.scene + ".yaml")
-    if not os.path.exists(scene_path):
-        parser.error(f"--scene: no scene {scene_path}")
-    if any(seed != "own" and not seed.isdigit() for seed in args.seeds):
-        parser.error(f"--seeds: expected 'own' or whole numbers, got {' '.join(args.seeds)}")
+    scene_path = office_surveys.scene_path(parser, args)
     spans = sorted(set(args.spans))
     print(f"| seed | truth dB | estimate dB | modelled | " + " | ".join(f"first {s:g} m" for s in spans) + " |")
     print("|---|---|---|---|" + "---|" * len(spans))
     for seed in args.seeds:
-        number = None if seed == "own" else int(seed)
-        out = os.path.join(args.out, f"{args.scene}-{seed}")
-        meta = os.path.join(out, args.scene + ".sigmf-meta")
-        if not os.path.exists(meta):
-            with contextlib.redirect_stdout(io.StringIO()):
-                cli_sim.main([scene_path, "--out", out, "--quiet"] + ([] if number is None else ["--seed", str(number)]))
+        meta, _, number = office_surveys.simulated(scene_path, args.scene, seed, args.out)
         survey = read_survey(meta)
         scene = scene_mod.load_scene(scene_path, seed=number)
         fused, info = cli_map.map_survey(survey, FusionSettings(material="plasterboard"), None,
-                                         SYSTEM_DELAY_S.get(args.scene), keep_results=True)
+                                         office_surveys.SYSTEM_DELAY_S.get(args.scene), keep_results=True)
         fusion, results = info["fusion"], info["jade_results"]
         truth = true_leak_db(fusion.refiner, scene)
         estimate = fused.stats.get("direct_leak_db")

@@ -1,0 +1,113 @@
+#!/usr/bin/python3
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""What the odometry's estimated scale and heading drift cost the trajectory.
+
+The pose adjustment estimates the odometry's scale error and its heading drift per metre with
+the poses (WallFusion._adjust_poses). This maps each seed twice from the same JADE results:
+
+- as mapped: as thrumapper-map does with its default options (cli_map.map_survey);
+- systematic known: the odometry first corrected by the scene's own scale error and heading
+  drift (the simulator's odometry model), and the adjustment told there is none left
+  (SYSTEMATIC_SIGNIFICANCE infinite: held at none). The per-step noise stays.
+
+and prints per seed the drift the adjustment estimated against the scene's, and for both maps
+the trajectory's RMS error, its heading error at the quarters of the track (estimate less
+truth, degrees) and its cross-track error at the track's end. The gap between the two RMS
+columns is what the drift and scale estimates cost (docs/mapping.md, "The heading the
+adjustment keeps").
+
+Usage: benchmarks/odometry_systematic.py [--out DIR] [--scene office_floor] [--seeds own 1 2 ...]
+       (PYTHONPATH=build/test_modules, or the module installed; a few minutes a seed)
+"""
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import dataclasses  # noqa: E402
+import json  # noqa: E402
+import math  # noqa: E402
+import sys  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from gnuradio.thrumapper import cli_map  # noqa: E402
+from gnuradio.thrumapper import scene as scene_mod  # noqa: E402
+from gnuradio.thrumapper.survey import read_survey  # noqa: E402
+from gnuradio.thrumapper.wall_fusion import FusionSettings, WallFusion, _compose, _relative  # noqa: E402
+
+import office_surveys  # noqa: E402
+
+def corrected_odometry(poses, scale_error, drift_deg_per_m):
+    """The odometry's poses (P, 3) with its systematic errors taken out step by step: each
+    step's motion divided by (1 + scale_error), its turn less the drift over its length."""
+    out = np.array(poses, float)
+    for i in range(1, len(out)):
+        step = _relative(poses[i - 1], poses[i])
+        step[:2] = step[:2] / (1.0 + scale_error)
+        step[2] -= math.radians(drift_deg_per_m) * math.hypot(step[0], step[1])
+        out[i] = _compose(out[i - 1], step)
+    return out
+
+
+def trajectory_errors(fused, truth_path):
+    """(RMS m, heading error deg at 0, 1/4, 1/2, 3/4, 1 of the track, cross-track error at the end, m)."""
+    with open(truth_path) as f:
+        truth = json.load(f)
+    feature = [f for f in truth["features"] if f["properties"].get("kind") == "trajectory"][0]
+    true_xy = np.array(feature["geometry"]["coordinates"], float)
+    true_h = np.array(feature["properties"]["headings_rad"], float)
+    xy = np.array(fused.trajectory, float)[:, :2]
+    heading = np.array(fused.trajectory, float)[:, 2]
+    if xy.shape != true_xy.shape:
+        raise SystemExit(f"the map has {len(xy)} poses, the truth {len(true_xy)}")
+    error = xy - true_xy
+    rms = float(np.sqrt(np.mean(np.sum(error ** 2, axis=1))))
+    turn = np.degrees(np.angle(np.exp(1j * (heading - true_h))))
+    quarters = [turn[int(round(q * (len(turn) - 1)))] for q in (0.0, 0.25, 0.5, 0.75, 1.0)]
+    direction = true_xy[-1] - true_xy[-2]
+    direction /= np.hypot(*direction)
+    cross = float(error[-1, 1] * direction[0] - error[-1, 0] * direction[1])
+    return rms, quarters, cross
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="\n\n".join(__doc__.split("\n\n")[1:]))
+    office_surveys.add_arguments(parser, "out/odometry_systematic")
+    args = parser.parse_args(argv)
+    scene_path = office_surveys.scene_path(parser, args)
+    odometry = scene_mod.load_scene(scene_path).odometry
+    print(f"{args.scene}: odometry scale error {odometry['scale_error']:g}, heading drift "
+          f"{odometry['heading_drift_deg_per_m']:g} deg/m\n")
+    print("| seed | drift estimated, deg/m | as mapped: RMS m | heading error at 1/4, 1/2, 3/4, end, deg | "
+          "cross at end m | systematic known: RMS m | heading error, deg | cross at end m |")
+    print("|---|---|---|---|---|---|---|---|")
+    for seed in args.seeds:
+        meta, truth, _ = office_surveys.simulated(scene_path, args.scene, seed, args.out)
+        survey = read_survey(meta)
+        fused, info = cli_map.map_survey(survey, FusionSettings(material="plasterboard"), None,
+                                         office_surveys.SYSTEM_DELAY_S.get(args.scene), keep_results=True)
+        fusion, results = info["fusion"], info["jade_results"]
+        known = WallFusion(fusion.radar, dataclasses.replace(fusion.settings))
+        known.SYSTEMATIC_SIGNIFICANCE = math.inf
+        known.enable_csi_refinement(info["system_delay_s"])
+        poses = corrected_odometry(np.array([r[0] for r in results], float), odometry["scale_error"],
+                                   odometry["heading_drift_deg_per_m"])
+        for pose, result in zip(poses, results):
+            known.add(pose, *result[1:])
+        fused_known = known.build_map()
+        rows = []
+        for f in (fused, fused_known):
+            rms, quarters, cross = trajectory_errors(f, truth)
+            rows.append(f"{rms:.3f} | " + " / ".join(f"{q:+.2f}" for q in quarters[1:]) + f" | {cross:+.3f}")
+        drift = fused.stats.get("odometry_drift_deg_per_m")
+        drift = "–" if drift is None else f"{drift:.3f}"
+        print(f"| {seed} | {drift} | {rows[0]} | {rows[1]} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

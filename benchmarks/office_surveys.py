@@ -1,0 +1,44 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""What the benchmarks that map re-simulated example scenes share: their --out, --scene and
+--seeds options, and the scene simulated once per seed (thrumapper-sim --seed), reused after."""
+import contextlib
+import io
+import os
+
+from gnuradio.thrumapper import cli_sim
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+SCENES_DIR = os.path.join(HERE, "..", "examples", "scenes")
+# the office scenes' survey does not state its system delay, and the TX null hides the
+# direct path it would be measured on (docs/mapping.md)
+SYSTEM_DELAY_S = {"office_floor": 31e-9, "office_floor_drift": 31e-9}
+
+
+def add_arguments(parser, default_out):
+    parser.add_argument("--out", default=default_out, help="where the simulated surveys are kept")
+    parser.add_argument("--scene", default="office_floor", help="example scene name (examples/scenes/NAME.yaml)")
+    parser.add_argument("--seeds", nargs="+", default=["own", "1", "2", "3"],
+                        help="seeds to simulate the scene with ('own': the scene's)")
+
+
+def scene_path(parser, args):
+    """The scene's YAML path, after checking --scene and --seeds (parser.error otherwise)."""
+    path = os.path.join(SCENES_DIR, args.scene + ".yaml")
+    if not os.path.exists(path):
+        parser.error(f"--scene: no scene {path}")
+    if any(seed != "own" and not seed.isdigit() for seed in args.seeds):
+        parser.error(f"--seeds: expected 'own' or whole numbers, got {' '.join(args.seeds)}")
+    return path
+
+
+def simulated(path, scene, seed, out_root):
+    """(SigMF meta path, truth GeoJSON path, seed number or None) of `scene` simulated with
+    `seed` under out_root/SCENE-SEED/, simulating it only when it is not there yet."""
+    number = None if seed == "own" else int(seed)
+    out = os.path.join(out_root, f"{scene}-{seed}")
+    meta = os.path.join(out, scene + ".sigmf-meta")
+    truth = os.path.join(out, scene + ".truth.geojson")
+    if not (os.path.exists(meta) and os.path.exists(truth)):
+        with contextlib.redirect_stdout(io.StringIO()):
+            cli_sim.main([path, "--out", out, "--quiet"] + ([] if number is None else ["--seed", str(number)]))
+    return meta, truth, number
