@@ -43,6 +43,7 @@ from gnuradio.thrumapper.wall_fusion import FusionSettings, WallFusion, _path_le
 
 import office_surveys  # noqa: E402
 
+
 def true_leak_db(refiner, scene):
     """The simulator's leak over the data's energy, dB, on the refiner's pose groups."""
     directs = refiner._element_directs()  # (M*N, K), unit TX weight each

@@ -13,8 +13,8 @@ the poses (WallFusion._adjust_poses). This maps each seed twice from the same JA
 and prints per seed the drift the adjustment estimated against the scene's, and for both maps
 the trajectory's RMS error, its heading error at the quarters of the track (estimate less
 truth, degrees) and its cross-track error at the track's end. The gap between the two RMS
-columns is what the drift and scale estimates cost (docs/mapping.md, "The heading the
-adjustment keeps").
+columns is what the drift and scale estimates cost (docs/mapping.md, "The drift
+and the scale, given").
 
 Usage: benchmarks/odometry_systematic.py [--out DIR] [--scene office_floor] [--seeds own 1 2 ...]
        (PYTHONPATH=build/test_modules, or the module installed; a few minutes a seed)
@@ -39,6 +39,7 @@ from gnuradio.thrumapper.wall_fusion import FusionSettings, WallFusion, _compose
 
 import office_surveys  # noqa: E402
 
+
 def corrected_odometry(poses, scale_error, drift_deg_per_m):
     """The odometry's poses (P, 3) with its systematic errors taken out step by step: each
     step's motion divided by (1 + scale_error), its turn less the drift over its length."""
@@ -51,13 +52,17 @@ def corrected_odometry(poses, scale_error, drift_deg_per_m):
     return out
 
 
-def trajectory_errors(fused, truth_path):
-    """(RMS m, heading error deg at 0, 1/4, 1/2, 3/4, 1 of the track, cross-track error at the end, m)."""
+def true_trajectory(truth_path):
+    """The truth's trajectory: (positions (P, 2), headings (P,), rad)."""
     with open(truth_path) as f:
         truth = json.load(f)
     feature = [f for f in truth["features"] if f["properties"].get("kind") == "trajectory"][0]
-    true_xy = np.array(feature["geometry"]["coordinates"], float)
-    true_h = np.array(feature["properties"]["headings_rad"], float)
+    return np.array(feature["geometry"]["coordinates"], float), np.array(feature["properties"]["headings_rad"], float)
+
+
+def trajectory_errors(fused, true_xy, true_h):
+    """(RMS m, heading error deg at 1/4, 1/2, 3/4 and the end of the track, cross-track error
+    at the end, m). The first pose is the truth's, so its heading error is none."""
     xy = np.array(fused.trajectory, float)[:, :2]
     heading = np.array(fused.trajectory, float)[:, 2]
     if xy.shape != true_xy.shape:
@@ -65,7 +70,7 @@ def trajectory_errors(fused, truth_path):
     error = xy - true_xy
     rms = float(np.sqrt(np.mean(np.sum(error ** 2, axis=1))))
     turn = np.degrees(np.angle(np.exp(1j * (heading - true_h))))
-    quarters = [turn[int(round(q * (len(turn) - 1)))] for q in (0.0, 0.25, 0.5, 0.75, 1.0)]
+    quarters = [turn[int(round(q * (len(turn) - 1)))] for q in (0.25, 0.5, 0.75, 1.0)]
     direction = true_xy[-1] - true_xy[-2]
     direction /= np.hypot(*direction)
     cross = float(error[-1, 1] * direction[0] - error[-1, 0] * direction[1])
@@ -99,10 +104,11 @@ def main(argv=None):
         for pose, result in zip(poses, results):
             known.add(pose, *result[1:])
         fused_known = known.build_map()
+        true_xy, true_h = true_trajectory(truth)
         rows = []
         for f in (fused, fused_known):
-            rms, quarters, cross = trajectory_errors(f, truth)
-            rows.append(f"{rms:.3f} | " + " / ".join(f"{q:+.2f}" for q in quarters[1:]) + f" | {cross:+.3f}")
+            rms, quarters, cross = trajectory_errors(f, true_xy, true_h)
+            rows.append(f"{rms:.3f} | " + " / ".join(f"{q:+.2f}" for q in quarters) + f" | {cross:+.3f}")
         drift = fused.stats.get("odometry_drift_deg_per_m")
         drift = "–" if drift is None else f"{drift:.3f}"
         print(f"| {seed} | {drift} | {rows[0]} | {rows[1]} |", flush=True)
