@@ -25,17 +25,14 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import dataclasses  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from gnuradio.thrumapper import cli_map  # noqa: E402
 from gnuradio.thrumapper import scene as scene_mod  # noqa: E402
-from gnuradio.thrumapper.survey import read_survey  # noqa: E402
-from gnuradio.thrumapper.wall_fusion import FusionSettings, WallFusion, _compose, _relative  # noqa: E402
+from gnuradio.thrumapper.wall_fusion import _compose, _relative  # noqa: E402
 
 import office_surveys  # noqa: E402
 
@@ -91,19 +88,10 @@ def main(argv=None):
           "cross at end m | systematic known: RMS m | heading error, deg | cross at end m |")
     print("|---|---|---|---|---|---|---|---|")
     for seed in args.seeds:
-        meta, truth, _ = office_surveys.simulated(scene_path, args.scene, seed, args.out)
-        survey = read_survey(meta)
-        fused, info = cli_map.map_survey(survey, FusionSettings(material="plasterboard"), None,
-                                         office_surveys.SYSTEM_DELAY_S.get(args.scene), keep_results=True)
-        fusion, results = info["fusion"], info["jade_results"]
-        known = WallFusion(fusion.radar, dataclasses.replace(fusion.settings))
-        known.SYSTEMATIC_SIGNIFICANCE = math.inf
-        known.enable_csi_refinement(info["system_delay_s"])
-        poses = corrected_odometry(np.array([r[0] for r in results], float), odometry["scale_error"],
+        fused, info, truth = office_surveys.mapped(scene_path, args.scene, seed, args.out)
+        poses = corrected_odometry(np.array([r[0] for r in info["jade_results"]], float), odometry["scale_error"],
                                    odometry["heading_drift_deg_per_m"])
-        for pose, result in zip(poses, results):
-            known.add(pose, *result[1:])
-        fused_known = known.build_map()
+        fused_known = office_surveys.remapped(info, poses, SYSTEMATIC_SIGNIFICANCE=math.inf)
         true_xy, true_h = true_trajectory(truth)
         rows = []
         for f in (fused, fused_known):

@@ -1,11 +1,16 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """What the benchmarks that map re-simulated example scenes share: their --out, --scene and
---seeds options, and the scene simulated once per seed (thrumapper-sim --seed), reused after."""
+--seeds options, the scene simulated once per seed (thrumapper-sim --seed), reused after, and
+its map as thrumapper-map makes it, which they map again from the same JADE results with one of
+the fusion's constants changed."""
 import contextlib
+import dataclasses
 import io
 import os
 
-from gnuradio.thrumapper import cli_sim
+from gnuradio.thrumapper import cli_map, cli_sim
+from gnuradio.thrumapper.survey import read_survey
+from gnuradio.thrumapper.wall_fusion import FusionSettings, WallFusion
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCENES_DIR = os.path.join(HERE, "..", "examples", "scenes")
@@ -42,3 +47,27 @@ def simulated(path, scene, seed, out_root):
         with contextlib.redirect_stdout(io.StringIO()):
             cli_sim.main([path, "--out", out, "--quiet"] + ([] if number is None else ["--seed", str(number)]))
     return meta, truth, number
+
+
+def mapped(path, scene, seed, out_root):
+    """(FusedMap, cli_map.map_survey's info with the JADE results kept, truth GeoJSON path) of
+    `scene` simulated with `seed` (simulated()) and mapped as thrumapper-map maps it."""
+    meta, truth, _ = simulated(path, scene, seed, out_root)
+    fused, info = cli_map.map_survey(read_survey(meta), FusionSettings(material="plasterboard"), None,
+                                     SYSTEM_DELAY_S.get(scene), keep_results=True)
+    return fused, info, truth
+
+
+def remapped(info, poses=None, **constants):
+    """The survey of `info` (mapped()) fused again from its JADE results, from `poses` instead
+    of the odometry's when given, with these WallFusion class constants set on the instance."""
+    fusion = info["fusion"]
+    again = WallFusion(fusion.radar, dataclasses.replace(fusion.settings))
+    for name, value in constants.items():
+        if not hasattr(WallFusion, name):
+            raise AttributeError(f"WallFusion has no constant {name}")
+        setattr(again, name, value)
+    again.enable_csi_refinement(info["system_delay_s"])
+    for i, result in enumerate(info["jade_results"]):
+        again.add(result[0] if poses is None else poses[i], *result[1:])
+    return again.build_map()

@@ -712,6 +712,22 @@ class WallFusion:
     ADJUSTMENT_MAX_NFEV = 200
     ADJUSTMENT_REWEIGHTS = 6
     ADJUSTMENT_CAUCHY = 2.0
+    #: the carrier phase of each line-of-sight wall's echo, tracked from pose to pose
+    #: (_phase_steps): the change of its path between consecutive poses, measured to 1-2 mm
+    #: where the fits' delays give centimetres, enters the adjustment with at least this
+    #: noise; 0: not used. Off by default: with 0.003 the office trajectories' median goes
+    #: from 0.143 to 0.109 m (the drift measured to 0.01-0.03 deg/m), but the maps' hidden
+    #: median from 0.20 to 0.27 m (docs/mapping.md, "The walls' carrier phase")
+    PHASE_STEP_SIGMA_M = 0.0
+    #: ...from a pose to the next only where both hold the wall's echo at least this share
+    #: of its median gain along the wall, and the robot moved at most PHASE_STEP_MAX_M
+    PHASE_STEP_MIN_GAIN = 0.3
+    PHASE_STEP_MAX_M = 0.5
+    #: ...on a wall seen over at least this many such steps; each wall's steps carry a free
+    #: constant of their own (a mapped piece that is not quite the wall whose echo it
+    #: holds answers with a steady offset per step), so that what they measure is how the
+    #: path's change changes along the wall: the heading's drift
+    PHASE_STEP_MIN_STEPS = 8
     #: the pose adjustment's model of the CSI fits' runs of bias along a line-of-sight wall
     #: (with the CSI): their size, how far along the wall they hold, the knots' spacing
     #: (_adjust_poses). Off (0: the fits taken as white noise): with 5 cm the office maps
@@ -2713,6 +2729,16 @@ class WallFusion:
             ax_normals.append(normal)
             ax_lines.append(float(np.mean(pw @ normal)))
         ax_normals = np.array(ax_normals).reshape(-1, 2)
+        # the walls' paths from pose to pose, on the carrier's phase (_phase_steps)
+        phase = self._phase_steps(state, poses, wall_cls, wall_slot) \
+            if self._fits_on_csi and self.PHASE_STEP_SIGMA_M > 0 else []
+        ph_g = np.array([q[0] for q in phase], int)
+        ph_slot = np.array([q[1] for q in phase], int)
+        ph_step = np.array([q[2] for q in phase], float)
+        ph_sigma = np.array([q[3] for q in phase], float)
+        ph_walls = sorted({q[4] for q in phase})
+        ph_free = np.array([ph_walls.index(q[4]) for q in phase], int)
+        n_free = len(ph_walls)
         # the per-pose fits of one wall err in runs a few metres long (doors, partitions and
         # cabinets behind it, the other wall's echo): counted as white noise those runs would
         # bend the track after them. Each line carries a bias along it (knots every
@@ -2745,7 +2771,7 @@ class WallFusion:
                              np.array([[math.atan2(walls[k]["normal"][1], walls[k]["normal"][0]),
                                         walls[k]["centre"] @ walls[k]["normal"]] for k in line_rep]).reshape(-1),
                              np.array([c for c, _ in landmarks]).reshape(-1), np.array(ax_lines).reshape(-1),
-                             np.zeros(n_bias), [0.0], [1.0, 0.0]])
+                             np.zeros(n_bias), np.zeros(n_free), [0.0], [1.0, 0.0]])
         n_fixed = n_pose + n_wall + n_corner + n_axial  # the knots follow
         steps = [_relative(odometry[g - 1], odometry[g]) for g in range(1, P)]
         sig_xy = np.array([max(s.odometry_scale_sigma * math.hypot(st[0], st[1]), s.odometry_position_sigma_m) for st in steps])
@@ -2811,13 +2837,19 @@ class WallFusion:
             if ax_g.size:
                 pw, _ = self._to_world(ax_r, np.zeros_like(ax_r), ps, ax_g)
                 out.extend(((np.sum(pw * ax_normals[ax_slot], axis=1) - ax[ax_slot]) / self.AXIAL_SIGMA_M).tolist())
+            if ph_g.size:
+                n_ = np.column_stack((np.cos(wl[ph_slot, 0]), np.sin(wl[ph_slot, 0])))
+                step = self._bistatic_lengths(ps[ph_g + 1], n_, wl[ph_slot, 1]) - \
+                    self._bistatic_lengths(ps[ph_g], n_, wl[ph_slot, 1])
+                free = x[n_fixed + n_bias:n_fixed + n_bias + n_free]
+                out.extend(((step - ph_step - free[ph_free]) / ph_sigma).tolist())
             for start, count in knot_first:  # the bias runs' AR(1) prior, line by line
                 b = bias[start:start + count]
                 out.append(b[0] / self.BIAS_RUN_SIGMA_M)
                 out.extend(((b[1:] - rho * b[:-1]) / bias_step_sigma).tolist())
             return np.array(out) * row_weights[0]
 
-        m = 3 * (P - 1) + 3 + 2 * len(obs_w) + 2 * len(obs_c) + ax_g.size + n_bias
+        m = 3 * (P - 1) + 3 + 2 * len(obs_w) + 2 * len(obs_c) + ax_g.size + ph_g.size + n_bias
         # the Jacobian's pattern, block by block as index arrays (a lil_matrix filled entry by
         # entry took most of the adjustment's time on a long survey)
         rows_at, cols_at = [], []
@@ -2860,6 +2892,12 @@ class WallFusion:
         pose_entries(rows, ax_g)
         entries(rows, n_pose + n_wall + n_corner + ax_slot[:, None])
         row += ax_g.size
+        rows = row + np.arange(ph_g.size)
+        pose_entries(rows, ph_g)
+        pose_entries(rows, ph_g + 1)
+        entries(rows, n_pose + 2 * ph_slot[:, None] + np.arange(2)[None, :])
+        entries(rows, n_fixed + n_bias + ph_free[:, None])
+        row += ph_g.size
         for start, count in knot_first:
             entries([row], [[n_fixed + start]])
             rows = row + np.arange(1, count)
@@ -2926,6 +2964,67 @@ class WallFusion:
                               "adjustment_optimality": float(solution.optimality),
                               "orientation_lean_deg": math.degrees(float(lean))}
         return ps
+
+    def _bistatic_lengths(self, poses, normals, offsets):
+        """(n,): the specular path TX centre -> line -> RX centre for poses (n, 3) and lines
+        n . x = offset (normals (n, 2) unit), by the image of the TX in the line."""
+        c, s_ = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+
+        def world(point):
+            return np.column_stack((poses[:, 0] + c * point[0] - s_ * point[1], poses[:, 1] + s_ * point[0] + c * point[1]))
+
+        tx, rx = world(self.tx_c), world(self.rx_c)
+        image = tx - 2.0 * (np.sum(tx * normals, axis=1) - offsets)[:, None] * normals
+        return np.hypot(*(rx - image).T)
+
+    def _phase_steps(self, state, poses, wall_cls, wall_slot):
+        """The change of each line-of-sight wall's echo path from a pose to the next, measured
+        on the carrier's phase: [(g, slot, metres, sigma, k)] for poses g and g + 1, the
+        adjustment's line `slot` (wall_slot: map wall k -> line) and the noise of wall k's
+        steps (their scatter about their running median, at least PHASE_STEP_SIGMA_M).
+
+        At each pose the wall's modelled echo (everything else modelled projected out) is
+        fitted to the CSI with a free complex gain; its phase is the model's path error at the
+        carrier, -2 pi (L - L_model) / lambda, plus the wall's reflection and the chains'
+        phases, which stay the same from one pose to the next along a wall. So the difference
+        of two consecutive poses' phases gives the difference of their true paths to within
+        a few millimetres (lambda = 12 cm), where each pose's delay alone is good to
+        centimetres: the cross-track motion relative to the wall, and so the heading, which
+        the odometry's drift bends. The model's step must be right to a quarter wavelength
+        (3 cm of path), which a heading off by a few degrees over a 0.2 m step is."""
+        walls = state["walls"]
+        if not wall_slot:
+            return []
+        self._refiner_map(state, poses, wall_cls)
+        refiner = self.refiner
+        wavelength = bistatic.SPEED_OF_LIGHT_M_S / self.radar.carrier_hz
+        out = []
+        for k, slot in wall_slot.items():
+            w = walls[k]
+            gains = {}
+            for g in sorted(refiner.poses):
+                z = refiner.echo_gain(g, k) if g < len(poses) else None
+                if z is not None:
+                    gains[g] = z
+            if len(gains) < 2:
+                continue
+            floor = self.PHASE_STEP_MIN_GAIN * float(np.median(np.abs(list(gains.values()))))
+            pairs = [g for g in gains if g + 1 in gains and min(abs(gains[g]), abs(gains[g + 1])) >= floor
+                     and float(np.hypot(*(poses[g + 1, :2] - poses[g, :2]))) <= self.PHASE_STEP_MAX_M]
+            if len(pairs) < self.PHASE_STEP_MIN_STEPS:
+                continue
+            a = np.array(pairs, int)
+            normal = np.tile(w["normal"], (a.size, 1))
+            offset = np.full(a.size, float(w["centre"] @ w["normal"]))
+            modelled = self._bistatic_lengths(poses[a + 1], normal, offset) - self._bistatic_lengths(poses[a], normal, offset)
+            turn = np.angle(np.array([gains[g + 1] * np.conj(gains[g]) for g in pairs]))
+            measured = modelled - turn * wavelength / (2.0 * np.pi)
+            # the wall's own noise: the steps' scatter about their running median (along a
+            # wall the path changes smoothly; an echo that is not this wall's does not)
+            smooth = np.array([np.median(measured[max(0, i - 2):i + 3]) for i in range(a.size)])
+            sigma = max(self.PHASE_STEP_SIGMA_M, 1.4826 * float(np.median(np.abs(measured - smooth))))
+            out.extend((int(g), int(slot), float(m), sigma, int(k)) for g, m in zip(a, measured))
+        return out
 
     def _collinear_lines(self, walls, tolerance_m=None):
         """[(members, longest, spans)]: each of _collinear_groups(walls, tolerance_m), the

@@ -562,6 +562,20 @@ class CsiWallRefiner:
         indices = [j for j, w in enumerate(self.walls) if any(w is c for c in crossing)]
         return {"gain": gain, "predicted": predicted, "crossed": indices}
 
+    def echo_gain(self, g, k):
+        """The complex least-squares gain, mean over the frames, of wall k's modelled echo in
+        group g's CSI, everything else modelled at the pose projected out; None when the pose
+        does not see the wall. Its phase is the echo's path error against the model at the
+        carrier, -2 pi (L - L_model) / lambda, plus the wall's reflection and the chains'
+        phases (WallFusion._phase_steps follows it from pose to pose)."""
+        if not self.sees(g, k):
+            return None
+        fitted = self._gain(self.poses[g], self._map_echo(g, k)[0], self._basis(g, k))
+        if fitted is None:
+            return None
+        _, v, energy = fitted
+        return complex(np.mean(self.poses[g].rows @ v.conj()) / energy)
+
     def _gain(self, data, echo, basis):
         """(RMS over the frames of the least-squares gain of `echo` in the data, the echo with
         `basis` projected out, its energy), or None when nothing of it is left: with the
