@@ -717,7 +717,7 @@ class WallFusion:
     #: where the fits' delays give centimetres, enters the adjustment with at least this
     #: noise; 0: not used. Off by default: with 0.003 the office trajectories' median goes
     #: from 0.143 to 0.109 m (the drift measured to 0.01-0.03 deg/m), but the maps' hidden
-    #: median from 0.20 to 0.27 m (docs/mapping.md, "The walls' carrier phase")
+    #: median from 0.20 to 0.30 m (docs/mapping.md, "The walls' carrier phase")
     PHASE_STEP_SIGMA_M = 0.0
     #: ...from a pose to the next only where both hold the wall's echo at least this share
     #: of its median gain along the wall, and the robot moved at most PHASE_STEP_MAX_M
@@ -2688,8 +2688,9 @@ class WallFusion:
     def _adjust_poses(self, det, odometry, poses, state, wall_cls, axial=()):
         """Least-squares adjustment of every pose with the line-of-sight walls, corners and
         axial landmarks (_axial_landmarks: walls across the track, ranged on the CSI) as
-        landmarks and the odometry increments as constraints (sparse Levenberg-Marquardt,
-        _levenberg_marquardt)."""
+        landmarks, the walls' path changes from pose to pose on the carrier's phase where
+        PHASE_STEP_SIGMA_M is set (_phase_steps), and the odometry increments as constraints
+        (sparse Levenberg-Marquardt, _levenberg_marquardt)."""
         from scipy.sparse import coo_matrix
 
         s = self.settings
