@@ -30,16 +30,14 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
-import dataclasses  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from gnuradio.thrumapper import building_sim, cli_map  # noqa: E402
+from gnuradio.thrumapper import building_sim  # noqa: E402
 from gnuradio.thrumapper import scene as scene_mod  # noqa: E402
-from gnuradio.thrumapper.survey import read_survey  # noqa: E402
-from gnuradio.thrumapper.wall_fusion import FusionSettings, WallFusion, _path_length  # noqa: E402
+from gnuradio.thrumapper.wall_fusion import WallFusion, _path_length  # noqa: E402
 
 import office_surveys  # noqa: E402
 
@@ -74,28 +72,16 @@ def main(argv=None):
     print(f"| seed | truth dB | estimate dB | modelled | " + " | ".join(f"first {s:g} m" for s in spans) + " |")
     print("|---|---|---|---|" + "---|" * len(spans))
     for seed in args.seeds:
-        meta, _, number = office_surveys.simulated(scene_path, args.scene, seed, args.out)
-        survey = read_survey(meta)
-        scene = scene_mod.load_scene(scene_path, seed=number)
-        fused, info = cli_map.map_survey(survey, FusionSettings(material="plasterboard"), None,
-                                         office_surveys.SYSTEM_DELAY_S.get(args.scene), keep_results=True)
-        fusion, results = info["fusion"], info["jade_results"]
-        truth = true_leak_db(fusion.refiner, scene)
+        fused, info, _ = office_surveys.mapped(scene_path, args.scene, seed, args.out)
+        scene = scene_mod.load_scene(scene_path, seed=None if seed == "own" else int(seed))
+        truth = true_leak_db(info["fusion"].refiner, scene)
         estimate = fused.stats.get("direct_leak_db")
         modelled = fused.stats.get("direct_leak_modelled", False)
-
-        def first_leak_db(count):
-            """The estimate of a map of the first `count` pose groups alone, at any length."""
-            part = WallFusion(fusion.radar, dataclasses.replace(fusion.settings))
-            part.DIRECT_LEAK_MIN_TRACK_M = 0.0
-            part.enable_csi_refinement(info["system_delay_s"])
-            for result in results[:count]:
-                part.add(*result)
-            return part.build_map().stats.get("direct_leak_db")
-
-        travelled = _path_length(np.array([r[0] for r in results], float))
+        travelled = _path_length(np.array([r[0] for r in info["jade_results"]], float))
         counts = [int(np.count_nonzero(travelled <= span + 1e-9)) for span in spans]
-        firsts = [first_leak_db(count) if count >= 2 else None for count in counts]
+        # a map of the first pose groups alone, at any length
+        firsts = [office_surveys.remapped(info, first=count, DIRECT_LEAK_MIN_TRACK_M=0.0).stats.get("direct_leak_db")
+                  if count >= 2 else None for count in counts]
 
         def db(value):
             return "–" if value is None else f"{value:.1f}"

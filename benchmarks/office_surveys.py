@@ -58,9 +58,10 @@ def mapped(path, scene, seed, out_root):
     return fused, info, truth
 
 
-def remapped(info, poses=None, **constants):
-    """The survey of `info` (mapped()) fused again from its JADE results, from `poses` instead
-    of the odometry's when given, with these WallFusion class constants set on the instance."""
+def refilled(info, poses=None, first=None, **constants):
+    """A WallFusion given again the JADE results of the survey of `info` (mapped()), the first
+    `first` pose groups only when given, at `poses` instead of the odometry's when given, with
+    these WallFusion class constants set on the instance; its map not built yet."""
     fusion = info["fusion"]
     again = WallFusion(fusion.radar, dataclasses.replace(fusion.settings))
     for name, value in constants.items():
@@ -68,6 +69,11 @@ def remapped(info, poses=None, **constants):
             raise AttributeError(f"WallFusion has no constant {name}")
         setattr(again, name, value)
     again.enable_csi_refinement(info["system_delay_s"])
-    for i, result in enumerate(info["jade_results"]):
+    for i, result in enumerate(info["jade_results"][:first]):
         again.add(result[0] if poses is None else poses[i], *result[1:])
-    return again.build_map()
+    return again
+
+
+def remapped(info, poses=None, first=None, **constants):
+    """refilled()'s map."""
+    return refilled(info, poses, first, **constants).build_map()

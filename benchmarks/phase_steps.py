@@ -25,30 +25,27 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
-import json  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from gnuradio.thrumapper import evaluation  # noqa: E402
 from gnuradio.thrumapper.wall_fusion import LOS, WallFusion  # noqa: E402
 
 import office_surveys  # noqa: E402
-from odometry_systematic import true_trajectory  # noqa: E402
+from odometry_systematic import trajectory_errors, true_trajectory  # noqa: E402
 
 
 def truth_walls(truth_path, track_xy, min_length_m=2.0):
     """The truth's line-of-sight walls of at least min_length_m as the fusion's wall dicts,
     each facing the track's middle."""
-    with open(truth_path) as f:
-        truth = json.load(f)
     middle = np.mean(track_xy, axis=0)
     walls = []
-    for feature in truth["features"]:
-        p = feature["properties"]
-        if p.get("kind") != "wall" or p.get("class") != "line_of_sight":
+    for wall in evaluation.load_map(truth_path, "truth").walls:
+        if wall["class"] != "line_of_sight":
             continue
-        a, b = (np.array(c, float) for c in (feature["geometry"]["coordinates"][0], feature["geometry"]["coordinates"][-1]))
+        a, b = np.asarray(wall["coordinates"][0], float), np.asarray(wall["coordinates"][-1], float)
         length = float(np.hypot(*(b - a)))
         if length < min_length_m:
             continue
@@ -61,13 +58,16 @@ def truth_walls(truth_path, track_xy, min_length_m=2.0):
     return walls
 
 
-def measured_against_truth(fusion, results, true_poses, walls):
+def measured_against_truth(info, true_poses, walls):
     """Rows (wall label, steps, median mm, MAD mm, heading-rate error deg/m) of the phase
-    steps at the true poses against the truth's walls."""
+    steps at the true poses against the truth's walls (the survey of `info`, mapped())."""
+    fusion = info["fusion"]
     probe = WallFusion(fusion.radar, dataclasses.replace(fusion.settings))
-    probe.enable_csi_refinement(fusion.refiner.system_delay_s)
-    for pose, result in zip(true_poses, results):
-        probe.add(pose, [], result[2], result[3], result[4])
+    probe.enable_csi_refinement(info["system_delay_s"])
+    # the CSI alone, without JADE's paths: at the true walls the estimator's paths of them
+    # would not count as theirs and would be projected out of their echoes
+    for pose, result in zip(true_poses, info["jade_results"]):
+        probe.add(pose, [], *result[2:])
     steps = probe._phase_steps({"walls": walls}, true_poses, [LOS] * len(walls), {k: k for k in range(len(walls))})
     rows = []
     for k, w in enumerate(walls):
@@ -96,20 +96,13 @@ def measured_against_truth(fusion, results, true_poses, walls):
 def trajectory_figures(fused, true_xy, true_h, odometry):
     """(drift estimated deg/m, drift the odometry shows deg/m, RMS m, heading error at the
     end deg, cross-track and along-track error at the end m)."""
-    xy = np.array(fused.trajectory, float)[:, :2]
-    heading = np.array(fused.trajectory, float)[:, 2]
-    error = xy - true_xy
-    rms = float(np.sqrt(np.mean(np.sum(error ** 2, axis=1))))
+    rms, quarters, cross = trajectory_errors(fused, true_xy, true_h)
     direction = true_xy[-1] - true_xy[-2]
-    direction /= np.hypot(*direction)
-    cross = float(error[-1, 1] * direction[0] - error[-1, 0] * direction[1])
-    along = float(error[-1] @ direction)
+    along = float((np.array(fused.trajectory, float)[-1, :2] - true_xy[-1]) @ direction / np.hypot(*direction))
     travelled = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(odometry[:, :2], axis=0).T))))
     shown = np.unwrap(odometry[:, 2]) - np.unwrap(true_h)
     realized = math.degrees(np.polyfit(travelled, shown - shown[0], 1)[0])
-    end = math.degrees(math.remainder(heading[-1] - true_h[-1], 2.0 * math.pi))
-    drift = fused.stats.get("odometry_drift_deg_per_m")
-    return drift, realized, rms, end, cross, along
+    return fused.stats.get("odometry_drift_deg_per_m"), realized, rms, quarters[-1], cross, along
 
 
 def main(argv=None):
@@ -126,13 +119,12 @@ def main(argv=None):
     measurement, adjustment = [], []
     for seed in args.seeds:
         fused, info, truth = office_surveys.mapped(scene_path, args.scene, seed, args.out)
-        fusion, results = info["fusion"], info["jade_results"]
         true_xy, true_h = true_trajectory(truth)
         true_poses = np.column_stack((true_xy, true_h))
-        for row in measured_against_truth(fusion, results, true_poses, truth_walls(truth, true_xy)):
+        for row in measured_against_truth(info, true_poses, truth_walls(truth, true_xy)):
             measurement.append((seed,) + row)
-        odometry = np.array([r[0] for r in results], float)
-        maps = {fusion.PHASE_STEP_SIGMA_M: fused}  # as thrumapper-map makes it
+        odometry = np.array([r[0] for r in info["jade_results"]], float)
+        maps = {info["fusion"].PHASE_STEP_SIGMA_M: fused}  # as thrumapper-map makes it
         for sigma in (args.sigma_m, 0.0):
             if sigma not in maps:
                 maps[sigma] = office_surveys.remapped(info, PHASE_STEP_SIGMA_M=sigma)

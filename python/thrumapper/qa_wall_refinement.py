@@ -97,11 +97,16 @@ def simulated(name):
     return sc, building_sim.simulate_survey(sc, progress=False)
 
 
+def radar_of(res):
+    """The fusion's RadarGeometry of a simulated survey."""
+    return RadarGeometry(res.tx_elements_m, res.rx_elements_m, res.tx_weights, res.center_frequency_hz,
+                         res.subcarrier_offsets_hz)
+
+
 def refiner_for(res, groups=(0,)):
     """A refiner with these poses' frames (default pose 0's), direct path cancelled as
     jade_pipeline does."""
-    radar = RadarGeometry(res.tx_elements_m, res.rx_elements_m, res.tx_weights, res.center_frequency_hz,
-                          res.subcarrier_offsets_hz)
+    radar = radar_of(res)
     core = tm.radar_description.make(res.tx_elements_m, res.rx_elements_m, res.center_frequency_hz,
                                      list(res.subcarrier_offsets_hz))
     projector = tm.path_projector(core)
@@ -124,17 +129,19 @@ def written_survey(directory, sc, res, poses):
     return survey.read_survey(meta)
 
 
-def mapped_with(sc, res, **constants):
-    """The simulated survey mapped by thrumapper-map's chain at its true poses, with these
-    WallFusion class constants changed for the call (to show what a mechanism does)."""
+def mapped_with(sc, res, odometry=False, **constants):
+    """The simulated survey mapped by thrumapper-map's chain at its true poses (with
+    `odometry`, at the odometry's, corrected), with these WallFusion class constants changed
+    for the call (to show what a mechanism does)."""
     fusion = importlib.import_module("gnuradio.thrumapper.wall_fusion").WallFusion  # the package's name is the block
     saved = {name: getattr(fusion, name) for name in constants}
     for name, value in constants.items():
         setattr(fusion, name, value)
     try:
         with tempfile.TemporaryDirectory() as tmp:
-            fused, _ = cli_map.map_survey(written_survey(tmp, sc, res, res.poses_true),
-                                          fusion_settings=wf_settings(correct_poses=False))
+            poses = res.poses_odometry if odometry else res.poses_true
+            fused, _ = cli_map.map_survey(written_survey(tmp, sc, res, poses),
+                                          fusion_settings=wf_settings(correct_poses=odometry))
     finally:
         for name, value in saved.items():
             setattr(fusion, name, value)
@@ -1213,10 +1220,8 @@ class qa_wall_refinement(gr_unittest.TestCase):
         data["trajectory"] = {"waypoints": [[0.0, 0.0], [8.0, 8.0 * math.tan(angle)]], "step_m": 0.2}
         sc = scene.load_scene(data)
         res = building_sim.simulate_survey(sc, progress=False)
-        radar = RadarGeometry(res.tx_elements_m, res.rx_elements_m, res.tx_weights, res.center_frequency_hz,
-                              res.subcarrier_offsets_hz)
         fusion_module = importlib.import_module("gnuradio.thrumapper.wall_fusion")  # the package's name is the block
-        fusion = fusion_module.WallFusion(radar, wf_settings())
+        fusion = fusion_module.WallFusion(radar_of(res), wf_settings())
         fusion.enable_csi_refinement(res.system_delay_s)
         for g, pose in enumerate(sc.poses):
             fusion.add(pose, [], g, res.csi[res.pose_index == g], res.tx_weights, direct_cancelled=False)
@@ -1251,14 +1256,7 @@ class qa_wall_refinement(gr_unittest.TestCase):
                             "heading_noise_deg": 0.1}
         sc = scene.load_scene(data)
         res = building_sim.simulate_survey(sc, progress=False)
-        fusion = importlib.import_module("gnuradio.thrumapper.wall_fusion").WallFusion  # the package's name is the block
-        saved = fusion.PHASE_STEP_SIGMA_M
-        fusion.PHASE_STEP_SIGMA_M = 0.003
-        try:
-            with tempfile.TemporaryDirectory() as tmp:
-                fused, _ = cli_map.map_survey(written_survey(tmp, sc, res, res.poses_odometry))
-        finally:
-            fusion.PHASE_STEP_SIGMA_M = saved
+        fused = mapped_with(sc, res, odometry=True, PHASE_STEP_SIGMA_M=0.003)
         odometry = building_sim.odometry_poses(sc, sc.poses)
         self.assertGreater(abs(math.degrees(odometry[-1, 2] - sc.poses[-1, 2])), 8.0)
         self.assertGreater(abs(odometry[-1, 1] - sc.poses[-1, 1]), 0.5)

@@ -2969,14 +2969,8 @@ class WallFusion:
     def _bistatic_lengths(self, poses, normals, offsets):
         """(n,): the specular path TX centre -> line -> RX centre for poses (n, 3) and lines
         n . x = offset (normals (n, 2) unit), by the image of the TX in the line."""
-        c, s_ = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-
-        def world(point):
-            return np.column_stack((poses[:, 0] + c * point[0] - s_ * point[1], poses[:, 1] + s_ * point[0] + c * point[1]))
-
-        tx, rx = world(self.tx_c), world(self.rx_c)
-        image = tx - 2.0 * (np.sum(tx * normals, axis=1) - offsets)[:, None] * normals
-        return np.hypot(*(rx - image).T)
+        tx, rx = self._legs_from(poses, np.arange(len(poses)))
+        return np.hypot(*(rx - bistatic.mirror(tx, normals * offsets[:, None], normals)).T)
 
     def _phase_steps(self, state, poses, wall_cls, wall_slot):
         """The change of each line-of-sight wall's echo path from a pose to the next, measured
