@@ -423,8 +423,9 @@ class qa_wall_refinement(gr_unittest.TestCase):
         about 2.5 times what the plasterboard model predicts, and the plasterboard piece's is
         not: the brick piece is labelled a dense material (brick, or concrete, which its
         strength alone does not tell from brick), the plasterboard piece and the corridor wall
-        plasterboard. The brick piece, hidden, is then moved by what the brick model changes in
-        its fit, onto its face (WallFusion._material_corrections). With --no-material-labels
+        plasterboard. The brick piece, hidden, is then moved to where the dense slabs' models fit
+        its echoes (midway between brick's and concrete's), onto its face
+        (WallFusion._material_corrections). With --no-material-labels
         (estimate_materials off) no wall is labelled, and the brick piece stays where the
         plasterboard model puts it, more than 0.15 m beyond its face."""
         data = scene_data("paper_4_4_corridor_corner")
@@ -454,8 +455,8 @@ class qa_wall_refinement(gr_unittest.TestCase):
         self.assertEqual({w.material for w in plaster}, {"plasterboard"}, plaster)
         self.assertEqual([w for w in unlabelled.walls if w.material], [])
         self.assertEqual(unlabelled.stats["walls_by_material"], {})
-        # the brick piece moved by what its own material's echo changes in its fit: fitted with
-        # the plasterboard model it lies 0.2-0.25 m beyond its face (y = -2.325), as unlabelled
+        # the brick piece moved to where the dense slabs' echoes fit it: fitted with the
+        # plasterboard model it lies 0.2-0.25 m beyond its face (y = -2.325), as unlabelled
         for w in brick:
             self.assertLess(max(abs(w.start_m[1] + 2.325), abs(w.end_m[1] + 2.325)), 0.05, w)
         brick_unlabelled = [w for w in unlabelled.walls if w.cls == "hidden" and max(w.start_m[0], w.end_m[0]) < 4.6]
@@ -555,8 +556,8 @@ class qa_wall_refinement(gr_unittest.TestCase):
         view of the robot beside a plasterboard wall skewed 12° that faces the same way; the
         survey states no wall material. The brick wall's echo is about 2.5 times what the
         plasterboard model predicts against the skewed wall's (the same part of the TX beam
-        lights both), so it is labelled brick or concrete and, line of sight as it is, moved by
-        what that model changes in its fit (WallFusion._material_corrections): from about
+        lights both), so it is labelled brick or concrete and, line of sight as it is, moved to
+        where the dense slabs' models fit its echoes (WallFusion._material_corrections): from about
         0.2 m beyond its face, where the plasterboard model puts it, to within 0.1 m of it.
         The plasterboard walls are not moved."""
         sc = scene.load_scene(scene_path("skewed_walls"))
@@ -576,6 +577,34 @@ class qa_wall_refinement(gr_unittest.TestCase):
         self.assertTrue(any(0.15 < abs(offset) < 0.3 for offset in moved.values()), moved)
         self.assertEqual({w.material for w in fused.walls if w.material and w.cls == "line_of_sight" and
                           w.source == "echoes" and w is not wall}, {"plasterboard"}, fused.walls)
+
+    def test_material_offset_finds_a_slab_face_from_either_side(self):
+        """A brick wall (20 cm, εr 3.91, face y = -1.5 m) beside the track, x = 0-8 m: with
+        the brick model its echoes put it on its face, from a map line 0.3 m short of it, on
+        it, or 0.4 m beyond it, to 1.4 mm (a grid over ±0.5 m, then a finer search about its
+        best point); with the survey's plasterboard model they put it 0.28 m beyond the face
+        (the slab's echo comes late). A line 0.6 m off, past the search, gives none. No chain
+        errors, so the CSI needs no RX calibration."""
+        data = straight_survey_data(
+            [{"name": "brick", "segment": [[-2.0, -1.6], [10.0, -1.6]], "material": "brick"}], 8.0, 0.4)
+        data["impairments"] = {"system_delay_s": 31.0e-9, "system_delay_known": True}  # no chain errors to calibrate
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+        refiner = refiner_for(res, groups=range(sc.poses.shape[0]))
+        brick = scene.MATERIAL_PRESETS["brick"]
+        for start_m in (-0.3, 0.0, 0.4):  # the map's line, beyond the face by this
+            line = dict(wall(-1.5 - start_m), t0=-2.0, t1=10.0, centre=np.array([4.0, -1.5 - start_m]))
+            refiner.set_map([line], sc.poses, [[] for _ in sc.poses], [False])
+            offset = refiner.material_offset(0, brick)
+            self.assertIsNotNone(offset, start_m)
+            self.assertAlmostEqual(offset, start_m, delta=0.03)
+            if start_m >= 0.0:  # (from 0.3 m short, the plasterboard fit is past the search)
+                plaster = refiner.material_offset(0, refiner.material)
+                self.assertGreater(start_m - plaster, 0.2, (start_m, plaster))
+                self.assertLess(start_m - plaster, 0.35, (start_m, plaster))
+        far = dict(wall(-2.1), t0=-2.0, t1=10.0, centre=np.array([4.0, -2.1]))
+        refiner.set_map([far], sc.poses, [[] for _ in sc.poses], [False])
+        self.assertIsNone(refiner.material_offset(0, brick))
 
     def test_side_wall_found_where_jade_reports_one(self):
         """A corridor of two plasterboard walls 2.15 m apart (faces at y = -1.0 and +1.0), the

@@ -1451,6 +1451,9 @@ class WallFusion:
     MATERIAL_CANDIDATES = ("plasterboard", "brick", "concrete")
     #: a wall's material is told from at least this many poses' echoes
     MATERIAL_MIN_POSES = 3
+    #: the candidates the echo strength does not tell apart: a wall labelled one of them is
+    #: placed midway between where their echo models fit it (_material_corrections)
+    DENSE_MATERIALS = ("brick", "concrete")
 
     def _confirm_walls(self, det, state, poses):
         """The map's walls confirmed on each pose's CSI where they lie, strongest first, and
@@ -1724,8 +1727,12 @@ class WallFusion:
 
     def _material_corrections(self, state, wall_cls):
         """Each wall labelled with another material than the survey's moved along its normal,
-        with its echoes, by what that material's echo model changes in its CSI fit
-        (CsiWallRefiner.material_shift; a shift at the fit's bound is not taken). A
+        with its echoes, to where that material's echo model fits its poses' CSI best
+        (CsiWallRefiner.material_offset; none at the search's end is taken). A wall labelled
+        brick or concrete (DENSE_MATERIALS), when the survey's material is neither, is put
+        midway between where the two models fit it: the strength tells a dense slab from
+        plasterboard but not brick from concrete (the office's brick exterior wall labelled
+        concrete on 39 of its 57 pieces over 24 surveys), and their fits differ by 6-8 cm. A
         line-of-sight wall only when most of its label's levels were measured against walls
         facing its way (_estimate_materials' first three references): a wall across the
         corridor, lit by another part of the TX beam than the walls it was measured against,
@@ -1740,13 +1747,20 @@ class WallFusion:
                 continue
             if wall_cls[k] == LOS and k not in self._labelled_facing:
                 continue
-            offset = self.refiner.material_shift(k, scene.MATERIAL_PRESETS[name])
-            if abs(offset) >= self.refiner.settings.max_offset_m:
-                continue  # at the fit's bound: not a measurement
+            names = [name]
+            if name in self.DENSE_MATERIALS and getattr(self.material, "name", None) not in self.DENSE_MATERIALS:
+                names = list(self.DENSE_MATERIALS)
+            offsets = [self.refiner.material_offset(k, scene.MATERIAL_PRESETS[n]) for n in names]
+            if any(o is None for o in offsets):
+                continue
+            offset = float(np.mean(offsets))
             w = state["walls"][k]
             shift = offset * w["normal"]
             state["pw"][w["members"]] += shift
-            state["walls"][k] = dict(w, centre=w["centre"] + shift)
+            # the CSI steps after this one (open doorways, partitions, hidden walls drawn on)
+            # then model its echo with its label's slab: with the survey's, a line on a dense
+            # slab's face explains less than one 0.2-0.3 m beyond it
+            state["walls"][k] = dict(w, centre=w["centre"] + shift, echo_material=scene.MATERIAL_PRESETS[name])
             moved[k] = round(float(offset), 4)
         return moved
 
@@ -2006,7 +2020,8 @@ class WallFusion:
         as _line_gain."""
         point_r, normal_r = self._robot_line(wall, poses[g])
         key = (g, tuple(sorted(exclude)), round(float(point_r @ normal_r) / self.FIT_REUSE_M),
-               round(math.atan2(normal_r[1], normal_r[0]) / math.radians(self.FIT_REUSE_DEG)), crossing_as)
+               round(math.atan2(normal_r[1], normal_r[0]) / math.radians(self.FIT_REUSE_DEG)), crossing_as,
+               getattr(wall.get("echo_material"), "name", None))
         if key not in self._line_gains:
             self._line_gains[key] = self.refiner.line_echo(g, wall, exclude, crossing_as)
         return self._line_gains[key]
