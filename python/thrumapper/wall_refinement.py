@@ -350,11 +350,11 @@ class CsiWallRefiner:
             self._map_echoes[(g, j)] = cached
         return cached[1]
 
-    def _basis(self, g, exclude, unexplained_paths=True):
+    def _basis(self, g, exclude, unexplained_paths=True, leak=True):
         """Orthonormal columns of everything modelled at group g but wall `exclude` (an index,
         a collection of them, or None): the other walls' echoes, the JADE paths no wall
         explains (far field; without them when not unexplained_paths), the cancelled direct
-        path."""
+        path (its estimated leak too, unless not leak)."""
         s = self.settings
         data, pose = self.poses[g], self.world_poses[g]
         excluded = set(exclude) if isinstance(exclude, (set, frozenset, list, tuple)) else {exclude}
@@ -379,7 +379,7 @@ class CsiWallRefiner:
                        abs(delay - d) < s.explained_delay_s for a, d in explained)
             if not near:
                 cols.append(self._far_field(aoa, delay))
-        cols.extend(data.cancelled())
+        cols.extend(data.cancelled() if leak else [data.direct])
         return self._orthonormal(cols)
 
     def _element_directs(self):
@@ -613,7 +613,7 @@ class CsiWallRefiner:
         fitted = self.line_echo(g, wall, exclude)
         return None if fitted is None else fitted[0]
 
-    def line_echo(self, g, wall, exclude=(), crossing_as=None):
+    def line_echo(self, g, wall, exclude=(), crossing_as=None, leak=True):
         """(gain, explained): line_gain's gain, and the energy of group g's CSI that the echo
         explains, mean over the frames (the gain squared times the projected echo's energy).
         The gain of a line moved further off grows as its modelled echo weakens; the energy
@@ -621,7 +621,9 @@ class CsiWallRefiner:
         crossing_as (a mapped hidden wall's index), the echo's legs cross the line-of-sight
         walls that wall's do, as its fits have them (a wall behind a wall answers later than
         its own place says: without it the data prefer a line some centimetres further off).
-        None as line_gain."""
+        With not leak, the direct path's estimated leak is left in the data (WallFusion's
+        doorway test: the estimate holds part of the corridor walls' own echo). None as
+        line_gain."""
         if g not in self.poses or g >= len(self.world_poses):
             return None
         unbounded = dict(wall, t0=-math.inf, t1=math.inf)
@@ -630,7 +632,7 @@ class CsiWallRefiner:
         e = self._echo(data, unbounded, self.world_poses[g], crossed)
         if e is None:
             return None
-        fitted = self._gain(data, e[0], self._basis(g, exclude, unexplained_paths=False))
+        fitted = self._gain(data, e[0], self._basis(g, exclude, unexplained_paths=False, leak=leak))
         return None if fitted is None else (fitted[0], fitted[0] ** 2 * fitted[2])
 
     #: material_offset searches this far either side of the map's wall...
