@@ -609,16 +609,16 @@ class qa_wall_refinement(gr_unittest.TestCase):
         for start_m in (-0.3, 0.0, 0.4):  # the map's line, beyond the face by this
             line = dict(wall(-1.5 - start_m), t0=-2.0, t1=10.0, centre=np.array([4.0, -1.5 - start_m]))
             refiner.set_map([line], sc.poses, [[] for _ in sc.poses], [False])
-            offset = refiner.material_offset(0, brick)
+            offset, = refiner.material_offsets(0, [brick])
             self.assertIsNotNone(offset, start_m)
             self.assertAlmostEqual(offset, start_m, delta=0.03)
             if start_m >= 0.0:  # (from 0.3 m short, the plasterboard fit is past the search)
-                plaster = refiner.material_offset(0, refiner.material)
+                plaster, = refiner.material_offsets(0, [refiner.material])
                 self.assertGreater(start_m - plaster, 0.2, (start_m, plaster))
                 self.assertLess(start_m - plaster, 0.35, (start_m, plaster))
         far = dict(wall(-2.1), t0=-2.0, t1=10.0, centre=np.array([4.0, -2.1]))
         refiner.set_map([far], sc.poses, [[] for _ in sc.poses], [False])
-        self.assertIsNone(refiner.material_offset(0, brick))
+        self.assertEqual(refiner.material_offsets(0, [brick]), [None])
 
     def test_side_wall_found_where_jade_reports_one(self):
         """A corridor of two plasterboard walls 2.15 m apart (faces at y = -1.0 and +1.0), the
@@ -808,8 +808,8 @@ class qa_wall_refinement(gr_unittest.TestCase):
     def test_open_doorway_found_beside_a_strong_direct_path_leak(self):
         """The corridor above with TX chains 10 degrees off (0.5 dB): the direct path they leave
         after the nominal one is cancelled holds -3 dB of the data, and the fusion models it.
-        The doorway test measures the line's gain with that estimate projected out and left
-        in, and takes each pose's lower ratio (WallFusion.OPENING_LEAK_WAYS): here the leak is
+        The doorway test searches the line's gain with that estimate projected out and left
+        in, each way alone, and takes a doorway either finds (WallFusion.OPENING_LEAK_WAYS): here the leak is
         real, and left in it fills the open door's dip (no opening found that way alone); on
         the office floors' strong-leak draws the estimate held part of the corridor walls' own
         echo, and projected out it hid the open door on ten of 24 surveys (docs/mapping.md,

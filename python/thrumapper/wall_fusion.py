@@ -1728,7 +1728,7 @@ class WallFusion:
     def _material_corrections(self, state, wall_cls):
         """Each wall labelled with another material than the survey's moved along its normal,
         with its echoes, to where that material's echo model fits its poses' CSI best
-        (CsiWallRefiner.material_offset; none at the search's end is taken). A wall labelled
+        (CsiWallRefiner.material_offsets; none at the search's end is taken). A wall labelled
         brick or concrete (DENSE_MATERIALS), when the survey's material is neither, is put
         midway between where the two models fit it: the strength tells a dense slab from
         plasterboard but not brick from concrete (the office's brick exterior wall labelled
@@ -1750,7 +1750,7 @@ class WallFusion:
             names = [name]
             if name in self.DENSE_MATERIALS and getattr(self.material, "name", None) not in self.DENSE_MATERIALS:
                 names = list(self.DENSE_MATERIALS)
-            offsets = [self.refiner.material_offset(k, scene.MATERIAL_PRESETS[n]) for n in names]
+            offsets = self.refiner.material_offsets(k, [scene.MATERIAL_PRESETS[n] for n in names])
             if any(o is None for o in offsets):
                 continue
             offset = float(np.mean(offsets))
@@ -3456,7 +3456,8 @@ class WallFusion:
             # finds taken (the better of two that overlap): on the office's strong-leak draws
             # the open door's dip was 0.36-0.69 of the line's median with the leak projected
             # out, closed doors' 0.41 and up (docs/mapping.md, "Where the open door is
-            # missed"); the lower of the two ratios pose by pose, a closed door passed
+            # missed"). Not the lower of the two ratios pose by pose: one pose low one way and
+            # the next the other let a closed door through
             ways = self.OPENING_LEAK_WAYS if self.refiner.direct_leak_modelled() else (True,)
             on_line = []  # (t0, t1, MapOpening)
             for leak in ways:

@@ -635,21 +635,23 @@ class CsiWallRefiner:
         fitted = self._gain(data, e[0], self._basis(g, exclude, unexplained_paths=False, leak=leak))
         return None if fitted is None else (fitted[0], fitted[0] ** 2 * fitted[2])
 
-    #: material_offset searches this far either side of the map's wall...
+    #: material_offsets searches this far either side of the map's wall...
     MATERIAL_SEARCH_M = 0.5
     #: ...first on a grid of this step...
     MATERIAL_GRID_M = 0.04
     #: ...on at most this many of the wall's poses, spread along it
     MATERIAL_MAX_GROUPS = 24
 
-    def material_offset(self, k, material):
-        """Where wall k lies along its normal when its echo is modelled with `material` (a
-        scene.Material) instead of the survey's: the offset from the map's wall k that
-        explains the most of its poses' CSI (at most MATERIAL_MAX_GROUPS of them, spread
-        along it), its direction held (a material changes the echo's delay, not the wall's
+    def material_offsets(self, k, materials):
+        """Where wall k lies along its normal when its echo is modelled with each of
+        `materials` (scene.Material) instead of the survey's: per material, the offset from
+        the map's wall k that explains the most of its poses' CSI (at most
+        MATERIAL_MAX_GROUPS of them, spread along it, and the same poses and bases for every
+        material), its direction held (a material changes the echo's delay, not the wall's
         direction). A grid over ±MATERIAL_SEARCH_M, then halving steps about its best point
-        and a parabola through the last three. None when no pose sees the wall or the best
-        point is the grid's end (not a maximum: something else answers there).
+        and a parabola through the last three. None for a material when no pose sees the
+        wall or its best point is the grid's end (not a maximum: something else answers
+        there).
 
         Why not the difference of two local fits, one per material (what this replaced): a
         local search in offset and rotation from the map's wall, on six poses, walked off in
@@ -662,13 +664,19 @@ class CsiWallRefiner:
         their slab's echo fits")."""
         groups = [g for g in sorted(self.poses) if g < len(self.world_poses) and self.sees(g, k)]
         if not groups:
-            return None
+            return [None] * len(materials)
         if len(groups) > self.MATERIAL_MAX_GROUPS:
             pick = np.linspace(0, len(groups) - 1, self.MATERIAL_MAX_GROUPS).round().astype(int)
             groups = [groups[i] for i in pick]
         wall = self.walls[k]
         pivot = np.mean([self._pivot(wall, self.world_poses[g]) for g in groups], axis=0)
-        objective = self._objective(k, groups, pivot, material=material)
+        bases = {g: self._basis(g, k) for g in groups}
+        return [self._offset_search(self._objective(k, groups, pivot, bases=bases, material=material))
+                for material in materials]
+
+    def _offset_search(self, objective):
+        """The offset maximising objective (trials (offset, 0)) for material_offsets, or None
+        at the grid's end."""
         step = self.MATERIAL_GRID_M
         n = int(round(self.MATERIAL_SEARCH_M / step))
         grid = step * np.arange(-n, n + 1)
