@@ -285,6 +285,43 @@ class qa_wall_fusion(gr_unittest.TestCase):
         behind_along = piece([4.0, 1.35], 2.0, 4.0)
         self.assertEqual(classes(along, behind_along), [LOS, HIDDEN])
 
+    def test_short_piece_does_not_hide_the_corridor_wall_behind_it(self):
+        """A line-of-sight wall goes on LINE_GAP_M (4 m) past its ends for the class rule;
+        with WallFusion.EXTENSION_WITHIN_OWN_LENGTH (off by default) no further than its own
+        length. A 1.6 m piece half way between the track and a 16 m corridor wall (a mis-fit
+        between the corridor's walls, seen from 8 poses) drawn on 4 m each way stands in front
+        of 9.6 m of the corridor wall, more than half its echoes, and hides it; drawn on 1.6 m
+        each way it stands in front of 4.8 m, and the corridor wall stays line of sight. A
+        piece as long as the gap still hides what is behind its reach."""
+        poses = straight_poses(0.0, 16.0)
+
+        def wall(x0, x1, y, step_m):
+            d, n = np.array([1.0, 0.0]), np.array([0.0, 1.0])  # south of the track, facing it
+            w = {"centre": np.array([0.5 * (x0 + x1), y]), "direction": d, "normal": n,
+                 "t0": -0.5 * (x1 - x0), "t1": 0.5 * (x1 - x0)}
+            xs = np.arange(x0 + 0.1, x1 - 0.05, step_m)
+            return w, [int(np.argmin(np.abs(poses[:, 0] - x))) for x in xs], [np.array([x, y]) for x in xs]
+
+        corridor, g_c, p_c = wall(0.0, 16.0, -1.0, 0.2)
+        piece, g_p, p_p = wall(7.2, 8.8, -0.5, 0.2)
+        n_c = len(g_c)
+        walls = [dict(corridor, members=np.arange(n_c)), dict(piece, members=np.arange(n_c, n_c + len(g_p)))]
+        n = n_c + len(g_p)
+        state = {"walls": walls, "labels": np.array([0] * n_c + [1] * len(g_p)), "crossings": [[] for _ in range(n)],
+                 "blocked": np.zeros(n, bool), "poses": poses, "group": np.array(g_c + g_p),
+                 "pw": np.array(p_c + p_p)}
+        fusion = WallFusion(RADAR, exact_settings())
+        self.assertEqual(fusion._classify(state)[1], [HIDDEN, LOS])  # the default: 4 m each way
+        fusion.EXTENSION_WITHIN_OWN_LENGTH = True
+        self.assertEqual(fusion._classify(state)[1], [LOS, LOS])
+        # the rule itself is kept: a piece as long as the gap hides what is behind its reach
+        piece, g_p, p_p = wall(4.0, 10.0, -0.5, 0.2)
+        walls[1] = dict(piece, members=np.arange(n_c, n_c + len(g_p)))
+        n = n_c + len(g_p)
+        state.update(walls=walls, labels=np.array([0] * n_c + [1] * len(g_p)), crossings=[[] for _ in range(n)],
+                     blocked=np.zeros(n, bool), group=np.array(g_c + g_p), pw=np.array(p_c + p_p))
+        self.assertEqual(fusion._classify(state)[1], [HIDDEN, LOS])
+
     def test_corridor_closed_at_a_wall_across_past_the_track(self):
         """A track x = 0 .. 10 m; the map's corridor walls (faces y = -1 and +1) start at
         x = 0 and 0.5 m, and a wall across the corridor at x = -2.9 (from echoes, y = -1.2 ..
