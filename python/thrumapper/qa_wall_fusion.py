@@ -322,6 +322,28 @@ class qa_wall_fusion(gr_unittest.TestCase):
                      blocked=np.zeros(n, bool), group=np.array(g_c + g_p), pw=np.array(p_c + p_p))
         self.assertEqual(fusion._classify(state)[1], [HIDDEN, LOS])
 
+    def test_doorway_lines_bridge_a_longer_gap(self):
+        """The doorway test (_openings) searches each line of the line-of-sight walls between
+        its pieces' outer ends. Two pieces of one corridor wall 4.6 m apart (a stretch round a
+        door that neither the echoes nor the side-wall search mapped) are two lines for the
+        pose adjustment and the class rule (LINE_GAP_M, 4 m), and one for the doorway test
+        (OPENING_LINE_GAP_M, 8 m), so the stretch between them is searched."""
+        def piece(x0, x1, y):
+            return {"centre": np.array([0.5 * (x0 + x1), y]), "direction": np.array([1.0, 0.0]),
+                    "normal": np.array([0.0, -1.0]), "t0": -0.5 * (x1 - x0), "t1": 0.5 * (x1 - x0)}
+
+        fusion = WallFusion(RADAR, exact_settings())
+        pieces = [piece(0.0, 10.4, 1.09), piece(15.0, 17.4, 1.07)]
+        self.assertEqual(len(fusion._collinear_lines(pieces)), 2)
+        lines = fusion._collinear_lines(pieces, fusion.OPENING_LINE_TOLERANCE_M, fusion.OPENING_LINE_GAP_M)
+        self.assertEqual(len(lines), 1)
+        spans = sorted(lines[0][2])
+        self.assertAlmostEqual(spans[0][1] - spans[0][0], 10.4, places=6)
+        self.assertAlmostEqual(spans[1][0] - spans[0][1], 4.6, places=6)  # the stretch searched
+        # not across a corridor: the facing wall is no piece of this line
+        self.assertEqual(len(fusion._collinear_lines(pieces + [piece(11.0, 14.0, -1.0)], fusion.OPENING_LINE_TOLERANCE_M,
+                                                     fusion.OPENING_LINE_GAP_M)), 2)
+
     def test_corridor_closed_at_a_wall_across_past_the_track(self):
         """A track x = 0 .. 10 m; the map's corridor walls (faces y = -1 and +1) start at
         x = 0 and 0.5 m, and a wall across the corridor at x = -2.9 (from echoes, y = -1.2 ..

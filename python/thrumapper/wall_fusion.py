@@ -3058,12 +3058,12 @@ class WallFusion:
             out.extend((int(g), int(slot), float(m), sigma, int(k)) for g, m in zip(a, measured))
         return out
 
-    def _collinear_lines(self, walls, tolerance_m=None):
+    def _collinear_lines(self, walls, tolerance_m=None, gap_m=None):
         """[(members, longest, spans)]: each of _collinear_groups(walls, tolerance_m), the
         index of its longest wall (whose line stands for the group's), and each member's
         extent (t0, t1) along that line."""
         out = []
-        for members in self._collinear_groups(walls, tolerance_m):
+        for members in self._collinear_groups(walls, tolerance_m, gap_m):
             longest = max(members, key=lambda i: walls[i]["t1"] - walls[i]["t0"])
             line = walls[longest]
             spans = []
@@ -3074,12 +3074,13 @@ class WallFusion:
             out.append((members, longest, spans))
         return out
 
-    def _collinear_groups(self, walls, tolerance_m=None):
+    def _collinear_groups(self, walls, tolerance_m=None, gap_m=None):
         """Groups (lists of indices) of walls on one straight line: orientations within
         LINE_ANGLE_DEG, each end of the nearer piece within tolerance_m (line_tolerance_m
-        when None) of the other's line, and at most LINE_GAP_M apart along it (a door, a
-        stretch without echoes)."""
+        when None) of the other's line, and at most gap_m (LINE_GAP_M when None) apart along
+        it (a door, a stretch without echoes)."""
         tolerance_m = self.settings.line_tolerance_m if tolerance_m is None else tolerance_m
+        gap_m = self.LINE_GAP_M if gap_m is None else gap_m
         parent = list(range(len(walls)))
 
         def root(i):
@@ -3098,7 +3099,7 @@ class WallFusion:
                 ends_b = [wb["centre"] + t * wb["direction"] for t in (wb["t0"], wb["t1"])]
                 gap, pa, pb = min(((float(np.hypot(*(p - q))), p, q) for p in ends_a for q in ends_b),
                                   key=lambda item: item[0])
-                if gap > self.LINE_GAP_M:
+                if gap > gap_m:
                     continue
                 # the facing ends, each against the other piece's line
                 if abs((pb - wa["centre"]) @ wa["normal"]) > tolerance_m or \
@@ -3445,6 +3446,11 @@ class WallFusion:
     #: off its line (office_floor seed 3: a piece 5 cm in front of the face, a side wall
     #: tilted 0.7 deg to 0.16 m behind it at the door) lies on one line
     OPENING_LINE_TOLERANCE_M = 0.25
+    #: ...and at most this far apart along it (None: LINE_GAP_M, 4 m): a doorway may lie in
+    #: a stretch of the wall that neither the echoes nor the side-wall search mapped (with
+    #: the phase steps for the drift, office_floor seed 1's north corridor wall had 4.6 m
+    #: unmapped round its open door; the default maps the same to 0.1 mm)
+    OPENING_LINE_GAP_M = 8.0
 
     def _openings(self, state, poses, wall_cls, side_walls=()):
         """Open doorways in the line-of-sight walls, found on the CSI ([MapOpening]).
@@ -3465,7 +3471,8 @@ class WallFusion:
         # the side walls (a door may lie where a side wall meets a piece mapped from echoes)
         items = [walls_in[k] for k in los_in] + list(side_walls)
         lines = []  # (line dict, pieces left in for its gain, [(t0, t1) of its members along it])
-        for members, longest, spans in self._collinear_lines(items, self.OPENING_LINE_TOLERANCE_M):
+        for members, longest, spans in self._collinear_lines(items, self.OPENING_LINE_TOLERANCE_M,
+                                                             self.OPENING_LINE_GAP_M):
             pieces = tuple(los_in[i] for i in members if i < len(los_in))
             lines.append((items[longest], pieces, spans, [items[i] for i in members]))
         found = []
