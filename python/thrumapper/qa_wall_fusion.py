@@ -295,32 +295,28 @@ class qa_wall_fusion(gr_unittest.TestCase):
         piece as long as the gap still hides what is behind its reach."""
         poses = straight_poses(0.0, 16.0)
 
-        def wall(x0, x1, y, step_m):
-            d, n = np.array([1.0, 0.0]), np.array([0.0, 1.0])  # south of the track, facing it
-            w = {"centre": np.array([0.5 * (x0 + x1), y]), "direction": d, "normal": n,
-                 "t0": -0.5 * (x1 - x0), "t1": 0.5 * (x1 - x0)}
-            xs = np.arange(x0 + 0.1, x1 - 0.05, step_m)
+        def wall(x0, x1, y):  # south of the track, facing it, an echo every 0.2 m
+            w = {"centre": np.array([0.5 * (x0 + x1), y]), "direction": np.array([1.0, 0.0]),
+                 "normal": np.array([0.0, 1.0]), "t0": -0.5 * (x1 - x0), "t1": 0.5 * (x1 - x0)}
+            xs = np.arange(x0 + 0.1, x1 - 0.05, 0.2)
             return w, [int(np.argmin(np.abs(poses[:, 0] - x))) for x in xs], [np.array([x, y]) for x in xs]
 
-        corridor, g_c, p_c = wall(0.0, 16.0, -1.0, 0.2)
-        piece, g_p, p_p = wall(7.2, 8.8, -0.5, 0.2)
-        n_c = len(g_c)
-        walls = [dict(corridor, members=np.arange(n_c)), dict(piece, members=np.arange(n_c, n_c + len(g_p)))]
-        n = n_c + len(g_p)
-        state = {"walls": walls, "labels": np.array([0] * n_c + [1] * len(g_p)), "crossings": [[] for _ in range(n)],
-                 "blocked": np.zeros(n, bool), "poses": poses, "group": np.array(g_c + g_p),
-                 "pw": np.array(p_c + p_p)}
+        def classes(fusion, piece_x0, piece_x1):
+            """The classes of the 16 m corridor wall (y = -1) and a piece at y = -0.5."""
+            (corridor, g_c, p_c), (piece, g_p, p_p) = wall(0.0, 16.0, -1.0), wall(piece_x0, piece_x1, -0.5)
+            n_c, n = len(g_c), len(g_c) + len(g_p)
+            state = {"walls": [dict(corridor, members=np.arange(n_c)), dict(piece, members=np.arange(n_c, n))],
+                     "labels": np.array([0] * n_c + [1] * len(g_p)), "crossings": [[] for _ in range(n)],
+                     "blocked": np.zeros(n, bool), "poses": poses, "group": np.array(g_c + g_p),
+                     "pw": np.array(p_c + p_p)}
+            return fusion._classify(state)[1]
+
         fusion = WallFusion(RADAR, exact_settings())
-        self.assertEqual(fusion._classify(state)[1], [HIDDEN, LOS])  # the default: 4 m each way
+        self.assertEqual(classes(fusion, 7.2, 8.8), [HIDDEN, LOS])  # the default: 4 m each way
         fusion.EXTENSION_WITHIN_OWN_LENGTH = True
-        self.assertEqual(fusion._classify(state)[1], [LOS, LOS])
+        self.assertEqual(classes(fusion, 7.2, 8.8), [LOS, LOS])
         # the rule itself is kept: a piece as long as the gap hides what is behind its reach
-        piece, g_p, p_p = wall(4.0, 10.0, -0.5, 0.2)
-        walls[1] = dict(piece, members=np.arange(n_c, n_c + len(g_p)))
-        n = n_c + len(g_p)
-        state.update(walls=walls, labels=np.array([0] * n_c + [1] * len(g_p)), crossings=[[] for _ in range(n)],
-                     blocked=np.zeros(n, bool), group=np.array(g_c + g_p), pw=np.array(p_c + p_p))
-        self.assertEqual(fusion._classify(state)[1], [HIDDEN, LOS])
+        self.assertEqual(classes(fusion, 4.0, 10.0), [HIDDEN, LOS])
 
     def test_doorway_lines_bridge_a_longer_gap(self):
         """The doorway test (_openings) searches each line of the line-of-sight walls between
