@@ -71,8 +71,8 @@ def scores(path, truth_path):
 def main(argv=None):
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0],
-        epilog="Example: benchmarks/map_rotation.py out/office_floor.geojson "
-               "examples/scenes/office_floor.truth.geojson")
+        epilog="Example, after ./scripts/demo.sh: benchmarks/map_rotation.py out/map.geojson "
+               "out/paper_4_4_corridor_corner.truth.geojson")
     parser.add_argument("files", nargs="+", metavar="MAP TRUTH", help="pairs of a map and its truth (GeoJSON)")
     args = parser.parse_args(argv)
     if len(args.files) % 2:
