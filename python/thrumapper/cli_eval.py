@@ -16,7 +16,9 @@ what it measures, per class (line_of_sight, hidden):
 and overall: true corners with a map corner within --corner-tolerance (0.5 m), open doorways
 (features "kind": "opening", which thrumapper-map and thrumapper-sim's truth write) found within
 --opening-tolerance (0.5 m) of a true one's middle and the RMS error of their jambs, and the
-trajectory error (pointwise RMS between the map's and the true trajectory).
+trajectory error (pointwise RMS between the map's and the true trajectory). Below the table,
+the true walls least covered (--missed, 5): name, class, length uncovered and where, so a low
+coverage says which walls the map misses (the JSON holds them all, "missed_walls").
 
 Both files are FORMATS.md maps: a FeatureCollection with "thrumapper:crs": "local-metres".
 thrumapper-sim writes the truth (NAME.truth.geojson); the mapper writes the map.
@@ -25,6 +27,7 @@ examples:
   thrumapper-eval office.map.geojson office_floor.truth.geojson
   thrumapper-eval map.geojson truth.geojson --json > scores.json
   thrumapper-eval map.geojson truth.geojson --coverage-tolerance 0.2
+  thrumapper-eval map.geojson truth.geojson --missed 20     # list more of the walls missed
 
 exit status: 0 scored, 2 a file is missing or breaks the format (the message names the field).
 """
@@ -50,6 +53,9 @@ def _parser():
     parser.add_argument("--opening-tolerance", type=float, default=0.5, metavar="M",
                         help="a true open doorway counts as found when a map opening's middle is within this "
                              "distance of its middle (default 0.5 m)")
+    parser.add_argument("--missed", type=int, default=5, metavar="N",
+                        help="list the N true walls with the most length uncovered below the table "
+                             "(default 5; 0 lists none)")
     return parser
 
 
@@ -61,6 +67,9 @@ def main(argv=None) -> int:
         if not getattr(args, name) > 0:
             print(f"thrumapper-eval: error: --{name.replace('_', '-')} must be > 0", file=sys.stderr)
             return 2
+    if args.missed < 0:
+        print("thrumapper-eval: error: --missed must be >= 0", file=sys.stderr)
+        return 2
     try:
         map_data = evaluation.load_map(args.map)
         truth_data = evaluation.load_map(args.truth)
@@ -73,7 +82,7 @@ def main(argv=None) -> int:
     if args.json:
         print(json.dumps(scores, indent=2))
     else:
-        print(evaluation.format_table(scores))
+        print(evaluation.format_table(scores, missed=args.missed))
     return 0
 
 

@@ -15,6 +15,9 @@ near no true corner, open doorways ("kind": "opening", the project's own feature
 within opening_tolerance_m (0.5 m) of a true one's middle and their jambs' error, and the
 trajectory error (pointwise RMS when the map's trajectory has as
 many points as the truth's; otherwise the RMS distance of its points to the true path, flagged).
+"missed_walls" lists each true wall feature with at least MISSED_MIN_M of its face uncovered,
+worst first: its name (thrumapper-sim's truth names every wall), class, length, the length
+uncovered and where the uncovered stretch begins and ends, so a low coverage says which walls.
 
 Lengths are measured by sampling every line at sample_m (1 cm) and weighting each sample by
 the length it stands for, so partial coverage of a segment is counted to the centimetre.
@@ -40,7 +43,7 @@ class MapData:
     """The features of a map that scoring uses, as numpy arrays (world metres)."""
 
     label: str
-    walls: list = field(default_factory=list)  # dicts: coordinates (n, 2), class, confidence
+    walls: list = field(default_factory=list)  # dicts: coordinates (n, 2), class, confidence, name (or None)
     detections: list = field(default_factory=list)  # dicts: points (n, 2), class
     corners: list = field(default_factory=list)  # dicts: position (2,), confidence, class (or None)
     openings: list = field(default_factory=list)  # (2, 2) arrays: an open doorway's two ends
@@ -165,6 +168,7 @@ def load_map(source, label=None):
                 "coordinates": _geometry(feature, where, "LineString"),
                 "class": _class(properties, where),
                 "confidence": _confidence(properties, where),
+                "name": properties["name"] if isinstance(properties.get("name"), str) else None,
             })
         elif kind == "detections":
             result.detections.append({
@@ -274,6 +278,30 @@ def _score_openings(ours, true, tolerance_m):
     return out
 
 
+#: a true wall is listed in "missed_walls" when at least this much of it is uncovered (m)
+MISSED_MIN_M = 0.1
+
+
+def _missed_walls(truth_walls, map_start, map_end, coverage_tolerance_m, sample_m):
+    """The true walls with uncovered face, worst first (see the module's docstring)."""
+    missed = []
+    for wall in truth_walls:
+        samples, weights = _sample([wall["coordinates"]], sample_m)
+        if samples.shape[0] == 0:
+            continue
+        uncovered = distance_to_segments(samples, map_start, map_end) > coverage_tolerance_m
+        uncovered_m = float(weights[uncovered].sum())
+        if uncovered_m < MISSED_MIN_M:
+            continue
+        idx = np.flatnonzero(uncovered)
+        missed.append({"name": wall.get("name"), "class": wall["class"], "length_m": float(weights.sum()),
+                       "uncovered_m": uncovered_m,
+                       "uncovered_from": [float(v) for v in samples[idx[0]]],
+                       "uncovered_to": [float(v) for v in samples[idx[-1]]]})
+    missed.sort(key=lambda m: -m["uncovered_m"])
+    return missed
+
+
 def score_map(map_data, truth_data, *, coverage_tolerance_m=0.3, false_tolerance_m=0.5, corner_tolerance_m=0.5,
               sample_m=0.01, opening_tolerance_m=0.5):
     """Score a map against the truth (MapData, or anything load_map takes). Returns a dict
@@ -337,6 +365,8 @@ def score_map(map_data, truth_data, *, coverage_tolerance_m=0.3, false_tolerance
                           "note": f"map has {ours.shape[0]} points, truth {true.shape[0]}: distances to the true path"}
 
     total_false = sum(c["false_wall_length_m"] for c in classes.values())
+    missed = _missed_walls([w for w in truth_data.walls if w["class"] in CLASSES], map_start, map_end,
+                           coverage_tolerance_m, sample_m)
     return {
         "map": map_data.label,
         "truth": truth_data.label,
@@ -346,6 +376,7 @@ def score_map(map_data, truth_data, *, coverage_tolerance_m=0.3, false_tolerance
         "corners": corners,
         "openings": openings,
         "trajectory": trajectory,
+        "missed_walls": missed,
         "tolerances_m": {"coverage": coverage_tolerance_m, "false_wall": false_tolerance_m,
                          "corner": corner_tolerance_m, "sample": sample_m, "opening": opening_tolerance_m},
     }
@@ -357,8 +388,9 @@ def _fmt(value, unit="", scale=1.0, digits=3):
     return f"{value * scale:.{digits}f}{unit}"
 
 
-def format_table(scores):
-    """The scores as a readable plain-text table."""
+def format_table(scores, missed=5):
+    """The scores as a readable plain-text table; `missed`: how many of the most uncovered
+    true walls to list (0: none)."""
     tol = scores["tolerances_m"]
     lines = [f"map:   {scores['map']}", f"truth: {scores['truth']}", ""]
     header = f"{'':34s}{'line_of_sight':>16s}{'hidden':>16s}"
@@ -396,4 +428,14 @@ def format_table(scores):
         how = "pointwise" if trajectory["pointwise"] else "to the true path"
         lines.append(f"trajectory error RMS ({how}, {trajectory['count']} points): {_fmt(trajectory['rms_m'])} m, "
                      f"max {_fmt(trajectory['max_m'])} m")
+    walls = scores.get("missed_walls") or []
+    if missed > 0 and walls:
+        shown = walls[:missed]
+        lines.append("")
+        lines.append(f"true walls least covered ({len(shown)} of {len(walls)} with {MISSED_MIN_M:g} m or more "
+                     f"uncovered):")
+        for m in shown:
+            a, b = m["uncovered_from"], m["uncovered_to"]
+            lines.append(f"  {(m['name'] or '(unnamed)'):20s} {m['class']:14s} {m['uncovered_m']:5.2f} of "
+                         f"{m['length_m']:5.2f} m uncovered, ({a[0]:.2f}, {a[1]:.2f}) .. ({b[0]:.2f}, {b[1]:.2f})")
     return "\n".join(lines)

@@ -200,6 +200,46 @@ class qa_evaluation(gr_unittest.TestCase):
             self.assertIn("not valid JSON", err.getvalue())
             self.assertIn("no such file", err.getvalue())
 
+    def test_missed_walls_say_which_walls_and_where(self):
+        # the map covers x <= 5 + 0.283 of the LoS face (0.1 m off, 0.3 m tolerance) and none
+        # of the hidden face (0.4 m off): 4.72 m and 10 m uncovered, the hidden wall first
+        truth = _truth()
+        truth["features"][0]["properties"]["name"] = "corridor_south"
+        scores = evaluation.score_map(_map(), truth)
+        missed = scores["missed_walls"]
+        self.assertEqual([m["name"] for m in missed], [None, "corridor_south"])
+        self.assertEqual([m["class"] for m in missed], ["hidden", "line_of_sight"])
+        self.assertAlmostEqual(missed[0]["uncovered_m"], 10.0, delta=1e-9)
+        self.assertAlmostEqual(missed[1]["uncovered_m"], 10.0 - 5.0 - math.sqrt(0.3**2 - 0.1**2), delta=0.011)
+        self.assertAlmostEqual(missed[1]["length_m"], 10.0, delta=1e-9)
+        self.assertAlmostEqual(missed[1]["uncovered_from"][0], 5.0 + math.sqrt(0.3**2 - 0.1**2), delta=0.011)
+        self.assertAlmostEqual(missed[1]["uncovered_to"][0], 10.0, delta=0.011)
+        self.assertEqual(missed[1]["uncovered_to"][1], -1.0)
+        # a wall covered to within MISSED_MIN_M is not listed
+        whole = _map()
+        whole["features"].append(_feature("LineString", [[0, -1], [10, -1]], kind="wall",
+                                          **{"class": "line_of_sight"}, confidence=1.0))
+        self.assertEqual([m["class"] for m in evaluation.score_map(whole, truth)["missed_walls"]], ["hidden"])
+        with tempfile.TemporaryDirectory() as tmp:
+            map_path, truth_path = os.path.join(tmp, "m.geojson"), os.path.join(tmp, "t.geojson")
+            for path, data in ((map_path, _map()), (truth_path, truth)):
+                with open(path, "w") as handle:
+                    json.dump(data, handle)
+            out = io.StringIO()
+            with contextlib.redirect_stdout(out):
+                self.assertEqual(cli_eval.main([map_path, truth_path, "--missed", "1"]), 0)
+            self.assertIn("true walls least covered (1 of 2", out.getvalue())
+            self.assertIn("(unnamed)", out.getvalue())
+            self.assertNotIn("corridor_south", out.getvalue())
+            out = io.StringIO()
+            with contextlib.redirect_stdout(out):
+                self.assertEqual(cli_eval.main([map_path, truth_path, "--missed", "0"]), 0)
+            self.assertNotIn("least covered", out.getvalue())
+            err = io.StringIO()
+            with contextlib.redirect_stderr(err):
+                self.assertEqual(cli_eval.main([map_path, truth_path, "--missed", "-1"]), 2)
+            self.assertIn("--missed must be >= 0", err.getvalue())
+
     def test_truth_scores_perfectly_against_itself(self):
         try:
             from gnuradio.thrumapper import building_sim, scene
@@ -224,6 +264,7 @@ class qa_evaluation(gr_unittest.TestCase):
             self.assertEqual(scores["classes"][cls]["false_wall_length_m"], 0.0)
         self.assertEqual(scores["corners"]["found"], scores["corners"]["truth"])
         self.assertAlmostEqual(scores["trajectory"]["rms_m"], 0.0)
+        self.assertEqual(scores["missed_walls"], [])
 
 
 if __name__ == "__main__":

@@ -727,7 +727,10 @@ class WallFusion:
     PHASE_STEP_SIGMA_M = 0.0
     #: ...and with PHASE_STEP_DRIFT_ONLY they give the odometry's heading drift alone: the
     #: adjustment is solved with them, its drift kept, and solved again without them, the
-    #: drift held there (the poses then rest on the walls' fits as without the phase steps)
+    #: drift held there (the poses then rest on the walls' fits as without the phase steps),
+    #: the scale held at 1 where the adjustment without them holds it (the phase steps say
+    #: nothing of the distance travelled: skewed_walls' scale, free there, came out
+    #: 1.006-1.020 for a true 0.995)
     PHASE_STEP_DRIFT_ONLY = False
     #: ...from a pose to the next only where both hold the wall's echo at least this share
     #: of its median gain along the wall, and the robot moved at most PHASE_STEP_MAX_M
@@ -2716,12 +2719,15 @@ class WallFusion:
         self._sequential_fit = {"odometry_scale": float(mu[3]), "odometry_drift_deg_per_m": math.degrees(mu[4])}
         return poses
 
-    def _adjust_poses(self, det, odometry, poses, state, wall_cls, axial=(), drift_held=None):
+    def _adjust_poses(self, det, odometry, poses, state, wall_cls, axial=(), drift_held=None, scale_held=False,
+                      without_phase=False):
         """Least-squares adjustment of every pose with the line-of-sight walls, corners and
         axial landmarks (_axial_landmarks: walls across the track, ranged on the CSI) as
         landmarks, the walls' path changes from pose to pose on the carrier's phase where
         PHASE_STEP_SIGMA_M is set (_phase_steps), and the odometry increments as constraints
-        (sparse Levenberg-Marquardt, _levenberg_marquardt)."""
+        (sparse Levenberg-Marquardt, _levenberg_marquardt). drift_held: the heading drift
+        (rad/m) held, the phase steps left out (PHASE_STEP_DRIFT_ONLY's second solve), and the
+        scale held at 1 with scale_held; without_phase: the phase steps left out."""
         from scipy.sparse import coo_matrix
 
         s = self.settings
@@ -2763,7 +2769,7 @@ class WallFusion:
         ax_normals = np.array(ax_normals).reshape(-1, 2)
         # the walls' paths from pose to pose, on the carrier's phase (_phase_steps)
         phase = self._phase_steps(state, poses, wall_cls, wall_slot) \
-            if self._fits_on_csi and self.PHASE_STEP_SIGMA_M > 0 and drift_held is None else []
+            if self._fits_on_csi and self.PHASE_STEP_SIGMA_M > 0 and drift_held is None and not without_phase else []
         ph_g = np.array([q[0] for q in phase], int)
         ph_slot = np.array([q[1] for q in phase], int)
         ph_step = np.array([q[2] for q in phase], float)
@@ -2977,7 +2983,9 @@ class WallFusion:
         sigma_fit = _last_standard_errors(solution.jac, 2)
         _, _, _, _, _, lean, scale, drift = unpack(x)
         z = np.abs(np.array([scale - 1.0, drift])) / np.maximum(sigma_fit, 1e-12)
-        held = bool(np.all(z < self.SYSTEMATIC_SIGNIFICANCE)) and drift_held is None
+        # (with the drift held, the scale is held where the caller found it held without the
+        # phase steps)
+        held = bool(np.all(z < self.SYSTEMATIC_SIGNIFICANCE)) if drift_held is None else bool(scale_held)
         # a scale further from 1 than the odometry can be off is not a measurement but echoes
         # tied to the wrong landmark (an end wall's corners, a partition seen end-on): held at
         # 1, the drift left to the data (office floors re-simulated without an axial landmark
@@ -2989,11 +2997,18 @@ class WallFusion:
         implausible = self._scale_latched or bool(abs(scale - 1.0) > self.SCALE_PLAUSIBLE_SIGMAS * s.odometry_scale_sigma)
         self._scale_latched = implausible
         if held or implausible:
-            prior[:] = [1e-6 * prior[0], 1e-6 * prior[1] if held else prior[1]]
+            prior[:] = [1e-6 * prior[0], 1e-6 * prior[1] if held and drift_held is None else prior[1]]
             x, solution = solve(x0)
         ps, _, _, _, _, lean, scale, drift = unpack(x)
         if ph_g.size and self.PHASE_STEP_DRIFT_ONLY:
-            adjusted = self._adjust_poses(det, odometry, poses, state, wall_cls, axial, drift_held=float(drift))
+            # the phase steps measure the heading, not the distance travelled: the scale is
+            # held at 1 where the adjustment without them holds it
+            latched = self._scale_latched
+            self._adjust_poses(det, odometry, poses, state, wall_cls, axial, without_phase=True)
+            scale_held = bool(self._odometry_fit["odometry_systematic_held"])
+            self._scale_latched = latched or self._scale_latched
+            adjusted = self._adjust_poses(det, odometry, poses, state, wall_cls, axial, drift_held=float(drift),
+                                          scale_held=scale_held)
             # the drift's standard error is the phase steps' solve's (the second holds it)
             self._odometry_fit["odometry_drift_sigma_deg_per_m"] = math.degrees(float(sigma_fit[1]))
             return adjusted

@@ -1,0 +1,175 @@
+#!/usr/bin/python3
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""The whole chain on an example scene with one of its elements taken away.
+
+Each variant is the scene less one thing: its clutter, its doors, its partitions, everything
+but the corridor, or one kind of the simulator's physics (second-order paths, edge scatter,
+the diffuse scatterers along every face). Each is simulated on the given seeds, mapped as
+thrumapper-map maps it, and scored with thrumapper-eval against its own truth. The table gives
+the medians over the seeds: line of sight and hidden detection error, the trajectory error,
+the turn of the whole map about its first pose (benchmarks/map_rotation.py) and the error of
+the odometry drift the adjustment estimates (against the drift the odometry's headings show:
+its last heading less the truth's, over the path).
+
+A mapper that understood the scene would map every variant at least as well as the whole
+scene; where a variant maps worse, the mapper leans on what was taken away, or a decision of
+its (a class, a doorway, a side wall) flips without it (docs/mapping.md, "The whole chain
+without one element of the scene").
+
+Usage: benchmarks/scene_ablation.py [--scene office_floor] [--seeds own 1 2 3]
+           [--variants full no_clutter ...] [--out /tmp/thrumapper_ablation] [--jobs 2]
+       (PYTHONPATH=build/test_modules, or the module installed; about 15 s a survey a core)
+"""
+import argparse
+import contextlib
+import copy
+import io
+import json
+import math
+import os
+import sys
+from multiprocessing import Pool
+
+import numpy as np
+import yaml
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import office_surveys  # noqa: E402
+from map_rotation import best_rotation  # noqa: E402
+
+from gnuradio.thrumapper import evaluation  # noqa: E402
+
+
+def _without(key):
+    def change(data):
+        data.pop(key, None)
+    return change
+
+
+def _physics_off(key):
+    def change(data):
+        data.setdefault("physics", {})[key] = False
+    return change
+
+
+def _corridor_only(data):
+    data.pop("clutter", None)
+    data.pop("doors", None)
+    data["walls"] = [w for w in data["walls"] if w["name"].startswith(("corridor", "end"))]
+
+
+def _no_partitions(data):
+    data["walls"] = [w for w in data["walls"] if not w["name"].startswith("partition")]
+    # doors stay where their walls stay
+    names = {w["name"] for w in data["walls"]}
+    data["doors"] = [d for d in data.get("doors", []) if d["wall"] in names]
+
+
+VARIANTS = {
+    "full": lambda data: None,
+    "no_clutter": _without("clutter"),
+    "no_doors": _without("doors"),
+    "no_partitions": _no_partitions,
+    "corridor_only": _corridor_only,
+    "no_second_order": _physics_off("second_order"),
+    "no_edges": _physics_off("edges"),
+    "no_diffuse": _physics_off("diffuse"),
+}
+
+
+def variant_scene(scene_yaml, variant, out_root):
+    """The scene with `variant` applied, written as out_root/VARIANT/SCENE.yaml; its path."""
+    with open(scene_yaml, encoding="utf-8") as handle:
+        data = yaml.safe_load(handle)
+    data = copy.deepcopy(data)
+    VARIANTS[variant](data)
+    folder = os.path.join(out_root, variant)
+    os.makedirs(folder, exist_ok=True)
+    path = os.path.join(folder, os.path.basename(scene_yaml))
+    with open(path, "w", encoding="utf-8") as handle:
+        yaml.safe_dump(data, handle)
+    return path
+
+
+def _trajectory(geojson):
+    for feature in geojson["features"]:
+        props = feature.get("properties") or {}
+        if props.get("kind") == "trajectory":
+            xy = np.asarray(feature["geometry"]["coordinates"], float)
+            h = props.get("headings_rad")
+            return xy, (np.zeros(len(xy)) if h is None else np.asarray(h, float))
+    return None, None
+
+
+def score(job):
+    """Map one (variant, seed) and score it: a dict of numbers."""
+    scene, variant, seed, scene_yaml, out_root = job
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        fused, info, truth_path = office_surveys.mapped(scene_yaml, scene, seed, os.path.join(out_root, variant))
+    map_path = os.path.join(out_root, variant, f"{scene}-{seed}", "map.geojson")
+    fused.write_geojson(map_path, fused_detections=True)
+    scores = evaluation.score_map(map_path, truth_path)
+    with open(map_path, encoding="utf-8") as handle:
+        ours, _ = _trajectory(json.load(handle))
+    with open(truth_path, encoding="utf-8") as handle:
+        true_xy, true_h = _trajectory(json.load(handle))
+    turn = math.degrees(best_rotation(ours, true_xy, true_xy[0])) if ours is not None else None
+    odometry = np.asarray([r[0] for r in info["jade_results"]], float)
+    path_m = float(np.sum(np.hypot(*np.diff(true_xy, axis=0).T)))
+    true_drift = math.degrees(math.remainder((odometry[-1, 2] - odometry[0, 2]) - (true_h[-1] - true_h[0]),
+                                             2.0 * math.pi)) / path_m
+    classes = scores["classes"]
+    return {"variant": variant, "seed": seed,
+            "los_m": classes["line_of_sight"]["detections"]["rms_m"],
+            "hidden_m": classes["hidden"]["detections"]["rms_m"],
+            "trajectory_m": (scores["trajectory"] or {}).get("rms_m"),
+            "turn_deg": turn,
+            "drift_error_deg_per_m": fused.stats.get("odometry_drift_deg_per_m", 0.0) - true_drift}
+
+
+def _median(rows, key, absolute=False):
+    values = [abs(r[key]) if absolute else r[key] for r in rows if r[key] is not None]
+    return float(np.median(values)) if values else None
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog="example: benchmarks/scene_ablation.py --seeds own 1 2 3 --variants full no_diffuse",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    office_surveys.add_arguments(parser, "/tmp/thrumapper_ablation")
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS),
+                        metavar="VARIANT", help="which variants (default all: " + ", ".join(VARIANTS) + ")")
+    parser.add_argument("--jobs", type=int, default=2, help="surveys mapped at once (default 2)")
+    parser.add_argument("--json", metavar="FILE", help="also write every survey's numbers to FILE")
+    args = parser.parse_args(argv)
+    if args.jobs < 1:
+        parser.error("--jobs must be >= 1")
+    scene_yaml = office_surveys.scene_path(parser, args)
+    jobs = [(args.scene, v, seed, variant_scene(scene_yaml, v, args.out), args.out)
+            for v in args.variants for seed in args.seeds]
+    rows = []
+    with Pool(args.jobs) as pool:
+        for i, row in enumerate(pool.imap_unordered(score, jobs), 1):
+            rows.append(row)
+            print(f"[{i}/{len(jobs)}] {row['variant']} seed {row['seed']}: line of sight {row['los_m']:.3f} m",
+                  file=sys.stderr, flush=True)
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as handle:
+            json.dump(rows, handle, indent=1)
+
+    def fmt(value, digits=3):
+        return "   -  " if value is None else f"{value:6.{digits}f}"
+
+    print(f"{args.scene}, seeds {' '.join(args.seeds)}: medians over the seeds")
+    print(f"{'variant':16s} {'LoS m':>6s} {'hidden':>6s} {'traj m':>6s} {'|turn|':>6s} {'|drift err|':>11s}")
+    for v in args.variants:
+        mine = [r for r in rows if r["variant"] == v]
+        print(f"{v:16s} {fmt(_median(mine, 'los_m'))} {fmt(_median(mine, 'hidden_m'))} "
+              f"{fmt(_median(mine, 'trajectory_m'))} {fmt(_median(mine, 'turn_deg', True), 2)}° "
+              f"{fmt(_median(mine, 'drift_error_deg_per_m', True))}°/m")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
