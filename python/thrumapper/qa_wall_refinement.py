@@ -1341,7 +1341,7 @@ class qa_wall_refinement(gr_unittest.TestCase):
         measures the heading, so used for the drift alone (WallFusion.PHASE_STEP_DRIFT_ONLY) it
         sets the drift; the distance travelled is no better known than before, so the scale
         stays held at 1 as without them (left free in the drift-held solve it came out
-        1.006-1.020 on seeds own-7, the truth 1/1.005 = 0.995)."""
+        1.001-1.020 on six of seeds own-7, the truth 1/1.005 = 0.995)."""
         data = scene_data("skewed_walls")
         data["frames_per_pose"] = 2
         sc = scene.load_scene(data)
