@@ -282,14 +282,25 @@ def _score_openings(ours, true, tolerance_m):
 MISSED_MIN_M = 0.1
 
 
-def _missed_walls(truth_walls, map_start, map_end, coverage_tolerance_m, sample_m):
-    """The true walls with uncovered face, worst first (see the module's docstring)."""
-    missed = []
+def _wall_coverage(truth_walls, map_start, map_end, coverage_tolerance_m, sample_m):
+    """Each true wall's samples, their weights and whether a map wall covers them: one
+    (samples, weights, covered) a wall, in order (the class coverage and the missed walls
+    both read these)."""
+    out = []
     for wall in truth_walls:
         samples, weights = _sample([wall["coordinates"]], sample_m)
+        out.append((samples, weights, distance_to_segments(samples, map_start, map_end) <= coverage_tolerance_m))
+    return out
+
+
+def _missed_walls(truth_walls, coverage):
+    """The true walls with uncovered face, worst first (see the module's docstring);
+    coverage: _wall_coverage's of the same walls."""
+    missed = []
+    for wall, (samples, weights, covered) in zip(truth_walls, coverage):
         if samples.shape[0] == 0:
             continue
-        uncovered = distance_to_segments(samples, map_start, map_end) > coverage_tolerance_m
+        uncovered = ~covered
         uncovered_m = float(weights[uncovered].sum())
         if uncovered_m < MISSED_MIN_M:
             continue
@@ -313,6 +324,8 @@ def score_map(map_data, truth_data, *, coverage_tolerance_m=0.3, false_tolerance
     map_lines = [w["coordinates"] for w in map_data.walls]
     map_start, map_end = _segments(map_lines)
     all_truth_start, all_truth_end = _segments([w["coordinates"] for w in truth_data.walls])
+    scored_walls = [w for w in truth_data.walls if w["class"] in CLASSES]
+    coverage = _wall_coverage(scored_walls, map_start, map_end, coverage_tolerance_m, sample_m)
 
     classes = {}
     for cls in CLASSES:
@@ -324,8 +337,9 @@ def score_map(map_data, truth_data, *, coverage_tolerance_m=0.3, false_tolerance
         detection = _stats(distances)
         if t_start.shape[0] == 0:
             detection["note"] = "the truth has no wall of this class"
-        samples, weights = _sample(truth_lines, sample_m)
-        covered = distance_to_segments(samples, map_start, map_end) <= coverage_tolerance_m
+        mine = [c for w, c in zip(scored_walls, coverage) if w["class"] == cls]
+        weights = np.concatenate([c[1] for c in mine]) if mine else np.zeros(0)
+        covered = np.concatenate([c[2] for c in mine]) if mine else np.zeros(0, bool)
         truth_length = float(weights.sum())
         covered_length = float(weights[covered].sum())
         map_samples, map_weights = _sample([w["coordinates"] for w in map_data.walls if w["class"] == cls], sample_m)
@@ -365,8 +379,7 @@ def score_map(map_data, truth_data, *, coverage_tolerance_m=0.3, false_tolerance
                           "note": f"map has {ours.shape[0]} points, truth {true.shape[0]}: distances to the true path"}
 
     total_false = sum(c["false_wall_length_m"] for c in classes.values())
-    missed = _missed_walls([w for w in truth_data.walls if w["class"] in CLASSES], map_start, map_end,
-                           coverage_tolerance_m, sample_m)
+    missed = _missed_walls(scored_walls, coverage)
     return {
         "map": map_data.label,
         "truth": truth_data.label,

@@ -3003,10 +3003,9 @@ class WallFusion:
         if ph_g.size and self.PHASE_STEP_DRIFT_ONLY:
             # the phase steps measure the heading, not the distance travelled: the scale is
             # held at 1 where the adjustment without them holds it
-            latched = self._scale_latched
+            # (that solve keeps the implausible scale's latch: it only ever sets it)
             self._adjust_poses(det, odometry, poses, state, wall_cls, axial, without_phase=True)
             scale_held = bool(self._odometry_fit["odometry_systematic_held"])
-            self._scale_latched = latched or self._scale_latched
             adjusted = self._adjust_poses(det, odometry, poses, state, wall_cls, axial, drift_held=float(drift),
                                           scale_held=scale_held)
             # the drift's standard error is the phase steps' solve's (the second holds it)
