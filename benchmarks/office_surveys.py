@@ -58,12 +58,13 @@ def mapped(path, scene, seed, out_root):
     return fused, info, truth
 
 
-def refilled(info, poses=None, first=None, **constants):
+def refilled(info, poses=None, first=None, settings=None, **constants):
     """A WallFusion given again the JADE results of the survey of `info` (mapped()), the first
     `first` pose groups only when given, at `poses` instead of the odometry's when given, with
-    these WallFusion class constants set on the instance; its map not built yet."""
+    the FusionSettings fields in the dict `settings` changed and these WallFusion class
+    constants set on the instance; its map not built yet."""
     fusion = info["fusion"]
-    again = WallFusion(fusion.radar, dataclasses.replace(fusion.settings))
+    again = WallFusion(fusion.radar, dataclasses.replace(fusion.settings, **(settings or {})))
     for name, value in constants.items():
         if not hasattr(WallFusion, name):
             raise AttributeError(f"WallFusion has no constant {name}")
@@ -74,6 +75,6 @@ def refilled(info, poses=None, first=None, **constants):
     return again
 
 
-def remapped(info, poses=None, first=None, **constants):
+def remapped(info, poses=None, first=None, settings=None, **constants):
     """refilled()'s map."""
-    return refilled(info, poses, first, **constants).build_map()
+    return refilled(info, poses, first, settings, **constants).build_map()

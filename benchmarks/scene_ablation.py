@@ -11,13 +11,18 @@ the turn of the whole map about its first pose (benchmarks/map_rotation.py) and 
 the odometry drift the adjustment estimates (against the drift the odometry's headings show:
 its last heading less the truth's, over the path).
 
+With --poses truth the fusion is given the true poses as its odometry (its pose correction
+still runs, and may move them); with --poses truth-held it keeps them (no pose correction).
+What is left is the map's own error, what the poses cannot be blamed for.
+
 A mapper that understood the scene would map every variant at least as well as the whole
 scene; where a variant maps worse, the mapper leans on what was taken away, or a decision of
 its (a class, a doorway, a side wall) flips without it (docs/mapping.md, "The whole chain
 without one element of the scene").
 
 Usage: benchmarks/scene_ablation.py [--scene office_floor] [--seeds own 1 2 3]
-           [--variants full no_clutter ...] [--out /tmp/thrumapper_ablation] [--jobs 2]
+           [--variants full no_clutter ...] [--poses odometry|truth|truth-held]
+           [--out /tmp/thrumapper_ablation] [--jobs 2]
        (PYTHONPATH=build/test_modules, or the module installed; about 15 s a survey a core)
 A variant that takes nothing away from the scene (no_doors on a scene without doors), or
 leaves it without a wall, is refused with a message naming it.
@@ -113,27 +118,41 @@ def _trajectory(geojson):
     return None, None
 
 
+#: --poses: what the fusion is given as the odometry, and whether it corrects it
+POSES = {"odometry": ("odometry", True), "truth": ("truth", True), "truth-held": ("truth", False)}
+
+
 def score(job):
     """Map one (variant, seed) and score it: a dict of numbers."""
-    scene, variant, seed, scene_yaml, out_root = job
+    scene, variant, seed, scene_yaml, out_root, poses = job
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
         fused, info, truth_path = office_surveys.mapped(scene_yaml, scene, seed, os.path.join(out_root, variant))
-    map_path = os.path.join(out_root, variant, f"{scene}-{seed}", "map.geojson")
+    with open(truth_path, encoding="utf-8") as handle:
+        true_xy, true_h = _trajectory(json.load(handle))
+    odometry = np.asarray([r[0] for r in info["jade_results"]], float)
+    source, corrected = POSES[poses]
+    if source == "truth":
+        if true_xy is None or len(true_xy) != len(odometry):
+            raise RuntimeError(f"{truth_path}: {0 if true_xy is None else len(true_xy)} true poses for "
+                               f"{len(odometry)} pose groups in the survey")
+        odometry = np.column_stack((true_xy, true_h))
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            fused = office_surveys.remapped(info, odometry, settings={"correct_poses": corrected})
+    map_path = os.path.join(out_root, variant, f"{scene}-{seed}", f"map-{poses}.geojson")
     fused.write_geojson(map_path, fused_detections=True)
     scores = evaluation.score_map(map_path, truth_path)
     with open(map_path, encoding="utf-8") as handle:
         ours, _ = _trajectory(json.load(handle))
-    with open(truth_path, encoding="utf-8") as handle:
-        true_xy, true_h = _trajectory(json.load(handle))
     turn = math.degrees(best_rotation(ours, true_xy, true_xy[0])) if ours is not None else None
-    odometry = np.asarray([r[0] for r in info["jade_results"]], float)
     path_m = float(np.sum(np.hypot(*np.diff(true_xy, axis=0).T)))
     true_drift = math.degrees(math.remainder((odometry[-1, 2] - odometry[0, 2]) - (true_h[-1] - true_h[0]),
                                              2.0 * math.pi)) / path_m
     classes = scores["classes"]
-    return {"variant": variant, "seed": seed,
+    return {"variant": variant, "seed": seed, "poses": poses,
             "los_m": classes["line_of_sight"]["detections"]["rms_m"],
             "hidden_m": classes["hidden"]["detections"]["rms_m"],
+            "los_coverage": classes["line_of_sight"]["coverage"],
+            "hidden_coverage": classes["hidden"]["coverage"],
             "trajectory_m": (scores["trajectory"] or {}).get("rms_m"),
             "turn_deg": turn,
             "drift_error_deg_per_m": fused.stats.get("odometry_drift_deg_per_m", 0.0) - true_drift}
@@ -147,11 +166,16 @@ def _median(rows, key, absolute=False):
 def main(argv=None):
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0],
-        epilog="example: benchmarks/scene_ablation.py --seeds own 1 2 3 --variants full no_diffuse",
+        epilog="examples:\n  benchmarks/scene_ablation.py --seeds own 1 2 3 --variants full no_diffuse\n"
+               "  benchmarks/scene_ablation.py --scene skewed_walls --variants full no_clutter --poses truth-held",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     office_surveys.add_arguments(parser, "/tmp/thrumapper_ablation")
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS),
                         metavar="VARIANT", help="which variants (default all: " + ", ".join(VARIANTS) + ")")
+    parser.add_argument("--poses", choices=list(POSES), default="odometry",
+                        help="the fusion's poses: the survey's odometry (default, as thrumapper-map), the true "
+                             "poses given as odometry (truth), or the true poses kept (truth-held: no pose "
+                             "correction)")
     parser.add_argument("--jobs", type=int, default=2, help="surveys mapped at once (default 2)")
     parser.add_argument("--json", metavar="FILE", help="also write every survey's numbers to FILE")
     args = parser.parse_args(argv)
@@ -162,25 +186,30 @@ def main(argv=None):
         paths = {v: variant_scene(scene_yaml, v, args.out) for v in args.variants}
     except VariantError as err:
         parser.error(f"--variants: {err}")
-    jobs = [(args.scene, v, seed, paths[v], args.out) for v in args.variants for seed in args.seeds]
+    jobs = [(args.scene, v, seed, paths[v], args.out, args.poses) for v in args.variants for seed in args.seeds]
+    def fmt(value, digits=3):
+        return "   -  " if value is None else f"{value:6.{digits}f}"
+
     rows = []
     with Pool(args.jobs) as pool:
         for i, row in enumerate(pool.imap_unordered(score, jobs), 1):
             rows.append(row)
-            print(f"[{i}/{len(jobs)}] {row['variant']} seed {row['seed']}: line of sight {row['los_m']:.3f} m",
+            print(f"[{i}/{len(jobs)}] {row['variant']} seed {row['seed']}: line of sight {fmt(row['los_m'])} m",
                   file=sys.stderr, flush=True)
     if args.json:
         with open(args.json, "w", encoding="utf-8") as handle:
             json.dump(rows, handle, indent=1)
 
-    def fmt(value, digits=3):
-        return "   -  " if value is None else f"{value:6.{digits}f}"
+    def percent(value):
+        return "   - " if value is None else f"{100.0 * value:4.0f}%"
 
-    print(f"{args.scene}, seeds {' '.join(args.seeds)}: medians over the seeds")
-    print(f"{'variant':16s} {'LoS m':>6s} {'hidden':>6s} {'traj m':>6s} {'|turn|':>6s} {'|drift err|':>11s}")
+    print(f"{args.scene}, seeds {' '.join(args.seeds)}, poses: {args.poses}; medians over the seeds")
+    print(f"{'variant':16s} {'LoS m':>6s} {'hidden':>6s} {'LoS cov':>7s} {'hid cov':>7s} {'traj m':>6s} {'|turn|':>6s} "
+          f"{'|drift err|':>11s}")
     for v in args.variants:
         mine = [r for r in rows if r["variant"] == v]
         print(f"{v:16s} {fmt(_median(mine, 'los_m'))} {fmt(_median(mine, 'hidden_m'))} "
+              f"{percent(_median(mine, 'los_coverage')):>7s} {percent(_median(mine, 'hidden_coverage')):>7s} "
               f"{fmt(_median(mine, 'trajectory_m'))} {fmt(_median(mine, 'turn_deg', True), 2)}° "
               f"{fmt(_median(mine, 'drift_error_deg_per_m', True))}°/m")
     return 0
