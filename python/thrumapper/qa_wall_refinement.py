@@ -16,7 +16,7 @@ import yaml
 from gnuradio import blocks, gr, gr_unittest
 
 from gnuradio import thrumapper as tm
-from gnuradio.thrumapper import bistatic, building_sim, cli_map, evaluation, scene, survey
+from gnuradio.thrumapper import bistatic, building_sim, cli_map, evaluation, jade_pipeline, scene, survey
 from gnuradio.thrumapper.wall_fusion import FusionSettings as wf_settings
 from gnuradio.thrumapper.testing import free_finished_flowgraphs, wait_for
 from gnuradio.thrumapper.wall_fusion import RadarGeometry, wall_fusion
@@ -315,6 +315,63 @@ class qa_wall_refinement(gr_unittest.TestCase):
         refiner = refiner_for(res)
         refiner.set_map([wall(-0.7, robot_side=-1.0)], np.zeros((1, 3)), [[]], [False])
         self.assertIsNone(refiner.fit_echo(0, 0))
+
+    def test_coherent_echoes_of_one_delay_refitted(self):
+        """Two metal walls either side of the robot, faces at y = +1.40 and -1.30 m: by the
+        image method between the array centres their echoes are 9.627 ns at 104.04 deg and
+        8.981 ns at 254.93 deg, 0.65 ns apart (an eighth of the 8.3 ns delay cell) and
+        coherent (one transmission). JADE pulls them toward each other, one by more than
+        0.25 ns (-0.71 and +0.29 ns on seed 5); refitted together on the CSI
+        (CsiWallRefiner.refit_paths) both land within 0.1 ns and 1 deg (+0.006 and +0.057 ns). In the fusion (WallFusion.JOINT_PATH_REFIT) every pose group with
+        CSI is refitted."""
+        data = straight_survey_data([
+            {"name": "north", "segment": [[-6.0, 1.401], [6.0, 1.401]], "material": "metal"},
+            {"name": "south", "segment": [[-6.0, -1.301], [6.0, -1.301]], "material": "metal"}], 1.0, 1.0)
+        data["physics"] = {"diffuse": False, "edges": False, "second_order": False, "transmission": False}
+        data["impairments"] = {"system_delay_s": 31.0e-9, "system_delay_known": True}  # no chain errors
+        data["seed"] = 5
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+        refiner = refiner_for(res)
+        # the metal face is the segment less half its 2 mm
+        truth = [bistatic.specular_path([0.0, y], [0.0, -math.copysign(1.0, y)], refiner.tx_c, refiner.rx_c)[:2]
+                 for y in (1.40, -1.30)]
+        self.assertAlmostEqual(truth[0][1] * 1e9, 9.627, places=3)
+        self.assertAlmostEqual(truth[1][1] * 1e9, 8.981, places=3)
+        core = tm.radar_description.make(res.tx_elements_m, res.rx_elements_m, res.center_frequency_hz,
+                                         list(res.subcarrier_offsets_hz), [complex(w) for w in res.tx_weights])
+        estimator = jade_pipeline.make_estimator(core, cli_map.jade_settings())
+        estimator.set_system_delay(res.system_delay_s)
+        paths = estimator.estimate(refiner.poses[0].rows.reshape(-1, 8, len(res.subcarrier_offsets_hz)))
+        aoa = np.radians([q.aoa_deg for q in paths])
+        delay = np.array([q.delay_s for q in paths])
+
+        def nearest(aoa_rad, delay_s, theta):
+            i = int(np.argmin(np.abs(np.remainder(aoa_rad - theta + math.pi, 2 * math.pi) - math.pi)))
+            return aoa_rad[i], delay_s[i]
+
+        jade_errors = [abs(nearest(aoa, delay, theta)[1] - tau) for theta, tau in truth]
+        self.assertGreater(max(jade_errors), 0.25e-9, np.round(np.array(jade_errors) * 1e9, 3))
+        refit_aoa, refit_delay = refiner.refit_paths(0, aoa, delay)
+        for theta, tau in truth:
+            a, d = nearest(refit_aoa, refit_delay, theta)
+            self.assertLess(abs(d - tau), 0.1e-9, (math.degrees(theta), d * 1e9, tau * 1e9))
+            self.assertLess(abs(math.degrees(math.remainder(a - theta, 2 * math.pi))), 1.0)
+        self.assertTrue(np.all(np.abs(refit_delay - delay) * bistatic.SPEED_OF_LIGHT_M_S <= 0.6 + 1e-9))
+        held = refiner.refit_paths(0, aoa, delay, movable=[i == 0 for i in range(aoa.size)])
+        np.testing.assert_array_equal(held[1][1:], delay[1:])  # the paths held stay put
+        np.testing.assert_allclose(held[0][1:], np.mod(aoa[1:], 2 * math.pi))
+        with self.assertRaisesRegex(ValueError, "1 movable flags for"):
+            refiner.refit_paths(0, aoa, delay, movable=[True])
+        with self.assertRaisesRegex(ValueError, "refit_paths: 2 angles for 1 delays"):
+            refiner.refit_paths(0, aoa[:2], delay[:1])
+        with self.assertRaisesRegex(ValueError, "must be finite"):
+            refiner.refit_paths(0, [math.nan], [9e-9])
+        with self.assertRaisesRegex(KeyError, "no CSI for pose group 7"):
+            refiner.refit_paths(7, aoa, delay)
+        fused = mapped_with(sc, res, JOINT_PATH_REFIT=True)
+        self.assertEqual(fused.stats["paths_refitted_groups"], sc.poses.shape[0])
+        self.assertNotIn("paths_refitted_groups", mapped_with(sc, res).stats)
 
     def test_bad_csi(self):
         _, res = simulated("paper_4_2_wall_0p7m")

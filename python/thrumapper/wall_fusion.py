@@ -650,6 +650,9 @@ class _PoseGroup:
     paths: list = field(default_factory=list)  # dicts: aoa_rad, delay_s, power, stage, count
     csi: list = field(default_factory=list)  # (M, N) frames for the refiner, with csi_weights
     csi_weights: np.ndarray = None
+    # JOINT_PATH_REFIT: the paths refitted on the CSI, and the (paths, CSI frames) they are of
+    refit: list = None
+    refit_of: tuple = None
 
 
 class WallFusion:
@@ -732,6 +735,23 @@ class WallFusion:
     #: nothing of the distance travelled: skewed_walls' scale, free there, came out
     #: 1.001-1.020 on six of eight seeds for a true 0.995)
     PHASE_STEP_DRIFT_ONLY = False
+    #: each pose's JADE paths estimated again together on its CSI before the map is made
+    #: (CsiWallRefiner.refit_paths: two walls' echoes of one delay cell, which JADE pulls
+    #: toward each other, come apart), within JOINT_REFIT_MAX_DEG and JOINT_REFIT_MAX_M of
+    #: JADE's; the refitted paths are the echoes and the paths the CSI fits project out. Off:
+    #: on the 32 cached surveys it maps skewed_walls better (line of sight 0.135 -> 0.081 m,
+    #: hidden coverage 60 -> 95 %) and the office trajectories (0.143 -> 0.106 m), but the
+    #: office's hidden walls worse (0.146 -> 0.256 m; docs/mapping.md, "Given the true poses")
+    JOINT_PATH_REFIT = False
+    JOINT_REFIT_MAX_DEG = 12.0
+    JOINT_REFIT_MAX_M = 0.6
+    #: ...the paths that move: those within JOINT_REFIT_STRONG_DB of the pose's strongest
+    #: (None: all), and those with a partner within JOINT_REFIT_PAIR_M of path length at least
+    #: JOINT_REFIT_PAIR_DEG away (a coherent pair; None: no such rule); the others stay
+    #: where JADE put them, in the model
+    JOINT_REFIT_STRONG_DB = 10.0
+    JOINT_REFIT_PAIR_M = 0.6
+    JOINT_REFIT_PAIR_DEG = 30.0
     #: ...from a pose to the next only where both hold the wall's echo at least this share
     #: of its median gain along the wall, and the robot moved at most PHASE_STEP_MAX_M
     PHASE_STEP_MIN_GAIN = 0.3
@@ -1012,14 +1032,52 @@ class WallFusion:
         return len(self.groups)
 
     # -- detections ------------------------------------------------------------------------
+    def _paths_of(self, group):
+        """A group's paths as the map uses them: refitted on the CSI (JOINT_PATH_REFIT), else
+        JADE's as added."""
+        return group.refit if self.JOINT_PATH_REFIT and group.refit is not None else group.paths
+
+    def _movable(self, paths):
+        """Which of a group's paths JOINT_PATH_REFIT moves (JOINT_REFIT_STRONG_DB,
+        JOINT_REFIT_PAIR_M and JOINT_REFIT_PAIR_DEG)."""
+        power = np.array([q["power"] for q in paths], float)
+        if self.JOINT_REFIT_STRONG_DB is None:
+            return np.ones(power.size, bool)
+        movable = power >= power.max() * 10.0 ** (-self.JOINT_REFIT_STRONG_DB / 10.0)
+        if self.JOINT_REFIT_PAIR_M is not None:
+            length = np.array([q["delay_s"] for q in paths]) * bistatic.SPEED_OF_LIGHT_M_S
+            aoa = np.array([q["aoa_rad"] for q in paths])
+            near = np.abs(length[:, None] - length[None, :]) < self.JOINT_REFIT_PAIR_M
+            apart = np.abs(_wrap(aoa[:, None] - aoa[None, :])) > math.radians(self.JOINT_REFIT_PAIR_DEG)
+            movable |= np.any(near & apart, axis=1)
+        return movable
+
+    def _refit_paths(self):
+        """JOINT_PATH_REFIT: each group's paths refitted on its CSI (CsiWallRefiner.refit_paths),
+        again only for a group whose paths or CSI changed since. Returns how many groups were
+        refitted."""
+        count = 0
+        for g, group in enumerate(self.groups):
+            key = (len(group.paths), group.frames, sum(q["count"] for q in group.paths))
+            if not group.paths or g not in self.refiner.poses or group.refit_of == key:
+                continue
+            aoa, delay = self.refiner.refit_paths(
+                g, [q["aoa_rad"] for q in group.paths], [q["delay_s"] for q in group.paths],
+                math.radians(self.JOINT_REFIT_MAX_DEG), self.JOINT_REFIT_MAX_M, self._movable(group.paths))
+            group.refit = [dict(q, aoa_rad=float(a), delay_s=float(d)) for q, a, d in zip(group.paths, aoa, delay)]
+            group.refit_of = key
+            count += 1
+        return count
+
     def _detections(self):
         """Screened echoes of every pose group as arrays (robot frame geometry uncorrected)."""
         s = self.settings
         rows = []
         for gi, group in enumerate(self.groups):
-            if not group.paths:
+            paths = self._paths_of(group)
+            if not paths:
                 continue
-            order = sorted(group.paths, key=lambda q: -q["power"])
+            order = sorted(paths, key=lambda q: -q["power"])
             strongest = None
             kept = 0
             for q in order:
@@ -1050,7 +1108,7 @@ class WallFusion:
         for group in self.groups:
             strongest = None
             kept = 0
-            for q in sorted(group.paths, key=lambda q: -q["power"]):
+            for q in sorted(self._paths_of(group), key=lambda q: -q["power"]):
                 try:
                     point, _ = bistatic.reflection_point(q["aoa_rad"], q["delay_s"], self.tx_c, self.rx_c)
                 except bistatic.GeometryError:
@@ -1787,7 +1845,7 @@ class WallFusion:
         map's)."""
         if wall_cls is None:
             _, wall_cls = self._classify(state)
-        paths = [[(q["aoa_rad"], q["delay_s"]) for q in g.paths] for g in self.groups]
+        paths = [[(q["aoa_rad"], q["delay_s"]) for q in self._paths_of(g)] for g in self.groups]
         self.refiner.set_map(list(state["walls"]) + list(side_walls), poses, paths,
                              [c == HIDDEN for c in wall_cls] + [False] * len(side_walls))
 
@@ -2518,6 +2576,8 @@ class WallFusion:
         stats = dict(self.counts)
         stats.update({"poses": len(self.groups), "skipped_far": far, "skipped_weak": weak, "skipped_near": near,
                       "direct_delay_s": self.direct_delay_s, "material": getattr(self.material, "name", None)})
+        if self.JOINT_PATH_REFIT and self._fits_on_csi:
+            stats["paths_refitted_groups"] = self._timed("joint path refit", self._refit_paths)
         det = self._timed("echo geometry", self._detections)
         if det is None or not len(self.groups):
             stats.update({"echoes": 0, "walls": 0, "corners": 0, "ghosts": 0, "elapsed_s": time.perf_counter() - started,

@@ -214,6 +214,102 @@ class CsiWallRefiner:
         space = np.exp(2j * np.pi * np.outer(self._rx_rel @ u, self.freqs_hz) / C)  # (M, N)
         return (space * np.exp(-2j * np.pi * self.freqs_hz * delay_s) * self._sys).ravel()
 
+    # -- JADE's paths refitted together ---------------------------------------------------
+    #: refit_paths: Levenberg-Marquardt iterations at most, and the step (rad, m) below which
+    #: it has converged
+    REFIT_ITERATIONS = 20
+    REFIT_TOLERANCE = 1e-5
+
+    def refit_paths(self, g, aoa_rad, delay_s, max_angle_rad=math.radians(12.0), max_path_m=0.6, movable=None):
+        """Pose group g's paths (aoa_rad, delay_s: JADE's, arrays of one length) estimated
+        again together on its CSI: (aoa_rad, delay_s) arrays, each path within max_angle_rad
+        and max_path_m (of path length) of where it started. movable (booleans, one a path;
+        default all): the paths that may move; the others stay where they are, in the model.
+
+        Two echoes of nearly one delay (two walls either side of the robot at one range) are
+        coherent, one transmission reflected twice, and inside one delay cell (8 ns at
+        120 MHz) a subspace estimate pulls them toward each other (docs/mapping.md, "Given the
+        true poses"). Least squares on the CSI itself does not: the paths' angles and delays
+        are moved to where far-field plane waves (_far_field) with a free complex gain per
+        path and frame explain the most of every frame, the direct path that the data lacks
+        projected out of the model as well. The gains are solved for at each step (variable
+        projection, with Kaufman's Jacobian) and the angles and delays found by
+        Levenberg-Marquardt within the bounds; the residual never grows from JADE's."""
+        aoa = np.asarray(aoa_rad, float).reshape(-1)
+        length = np.asarray(delay_s, float).reshape(-1) * C
+        if aoa.size != length.size:
+            raise ValueError(f"refit_paths: {aoa.size} angles for {length.size} delays")
+        if not (np.all(np.isfinite(aoa)) and np.all(np.isfinite(length))):
+            raise ValueError("refit_paths: the paths' angles and delays must be finite")
+        if g not in self.poses:
+            raise KeyError(f"refit_paths: no CSI for pose group {g}")
+        count = aoa.size
+        free = np.ones(count, bool) if movable is None else np.asarray(movable, bool).reshape(-1)
+        if free.size != count:
+            raise ValueError(f"refit_paths: {free.size} movable flags for {count} paths")
+        if not free.any():
+            return np.mod(aoa, 2.0 * math.pi), length / C
+        data = self.poses[g]
+        rows = data.rows.T  # (M*N, frames)
+        cancelled = self._orthonormal(list(data.cancelled()))
+        wave = 2j * np.pi * self.freqs_hz / C  # (N,) phase per metre
+
+        def columns(theta, path_m):
+            """The paths' responses and their derivatives in angle and path length, each
+            (M*N, count), with the cancelled direct path projected out."""
+            along = self._rx_rel @ np.stack((np.cos(theta), np.sin(theta)))  # (M, count)
+            across = self._rx_rel @ np.stack((-np.sin(theta), np.cos(theta)))
+            a = np.exp(wave[None, :, None] * (along[:, None, :] - path_m[None, None, :])) * self._sys[None, :, None]
+            out = []
+            for block in (a, a * (wave[None, :, None] * across[:, None, :]), -a * wave[None, :, None]):
+                block = block.reshape(-1, count)
+                out.append(block - cancelled @ (cancelled.conj().T @ block))
+            return out
+
+        def solved(theta, path_m):
+            a, d_theta, d_path = columns(theta, path_m)
+            q, _ = np.linalg.qr(a)
+            gains = np.linalg.lstsq(a, rows, rcond=None)[0]  # (count, frames)
+            residual = rows - a @ gains
+            return float(np.vdot(residual, residual).real), residual, q, gains, d_theta, d_path
+
+        moving = np.flatnonzero(free)
+        moved = np.concatenate((moving, count + moving))  # the free entries of x
+        lo = np.concatenate((aoa - max_angle_rad, length - max_path_m))[moved]
+        hi = np.concatenate((aoa + max_angle_rad, length + max_path_m))[moved]
+        x = np.concatenate((aoa, length))
+        cost, residual, q, gains, d_theta, d_path = solved(aoa, length)
+        damping = 1e-3
+        for _ in range(self.REFIT_ITERATIONS):
+            # Kaufman's Jacobian of the projected residual: -(I - QQᴴ) (∂a_i/∂x) gains_i
+            jac = []
+            for d in (d_theta, d_path):
+                for i in moving:
+                    v = np.outer(d[:, i], gains[i])
+                    jac.append(-(v - q @ (q.conj().T @ v)).ravel())
+            jac = np.stack(jac, axis=1)
+            jac = np.concatenate((jac.real, jac.imag))
+            r = np.concatenate((residual.real.ravel(), residual.imag.ravel()))
+            normal = jac.T @ jac
+            gradient = jac.T @ r
+            step = np.zeros(moved.size)
+            for _ in range(8):
+                step = -np.linalg.solve(normal + damping * np.diag(np.diag(normal) + 1e-30), gradient)
+                trial = x.copy()
+                trial[moved] = np.clip(x[moved] + step, lo, hi)
+                result = solved(trial[:count], trial[count:])
+                if result[0] < cost:
+                    x = trial
+                    cost, residual, q, gains, d_theta, d_path = result
+                    damping = max(damping / 3.0, 1e-9)
+                    break
+                damping *= 4.0
+            else:
+                break
+            if np.max(np.abs(step)) < self.REFIT_TOLERANCE:
+                break
+        return np.mod(x[:count], 2.0 * math.pi), x[count:] / C
+
     def _echo(self, data, wall, pose, crossed, material=None, doubles=False):
         """The wall's predicted echo at a pose, (M*N,), or None when the pose does not see it;
         of `material` when given, else of the wall's own (its "echo_material", which
