@@ -49,12 +49,13 @@ def simulated(path, scene, seed, out_root):
     return meta, truth, number
 
 
-def mapped(path, scene, seed, out_root):
+def mapped(path, scene, seed, out_root, build=True):
     """(FusedMap, cli_map.map_survey's info with the JADE results kept, truth GeoJSON path) of
-    `scene` simulated with `seed` (simulated()) and mapped as thrumapper-map maps it."""
+    `scene` simulated with `seed` (simulated()) and mapped as thrumapper-map maps it (with
+    build=False, JADE only: FusedMap None, for remapped())."""
     meta, truth, _ = simulated(path, scene, seed, out_root)
     fused, info = cli_map.map_survey(read_survey(meta), FusionSettings(material="plasterboard"), None,
-                                     SYSTEM_DELAY_S.get(scene), keep_results=True)
+                                     SYSTEM_DELAY_S.get(scene), keep_results=True, build=build)
     return fused, info, truth
 
 

@@ -125,12 +125,14 @@ POSES = {"odometry": ("odometry", True), "truth": ("truth", True), "truth-held":
 def score(job):
     """Map one (variant, seed) and score it: a dict of numbers."""
     scene, variant, seed, scene_yaml, out_root, poses = job
+    source, corrected = POSES[poses]
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        fused, info, truth_path = office_surveys.mapped(scene_yaml, scene, seed, os.path.join(out_root, variant))
+        # from the true poses the odometry's map is not needed: JADE only, mapped below
+        fused, info, truth_path = office_surveys.mapped(scene_yaml, scene, seed, os.path.join(out_root, variant),
+                                                        build=source == "odometry")
     with open(truth_path, encoding="utf-8") as handle:
         true_xy, true_h = _trajectory(json.load(handle))
     odometry = np.asarray([r[0] for r in info["jade_results"]], float)
-    source, corrected = POSES[poses]
     if source == "truth":
         if true_xy is None or len(true_xy) != len(odometry):
             raise RuntimeError(f"{truth_path}: {0 if true_xy is None else len(true_xy)} true poses for "
@@ -187,6 +189,7 @@ def main(argv=None):
     except VariantError as err:
         parser.error(f"--variants: {err}")
     jobs = [(args.scene, v, seed, paths[v], args.out, args.poses) for v in args.variants for seed in args.seeds]
+
     def fmt(value, digits=3):
         return "   -  " if value is None else f"{value:6.{digits}f}"
 

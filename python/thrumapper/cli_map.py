@@ -140,13 +140,14 @@ def jade_settings(paths=8, stages=1, max_delay_s=60e-9, angles=360, delays=240):
 
 
 def map_survey(survey, fusion_settings=None, settings=None, system_delay_s=None, progress=None, timings=None,
-               refine_on_csi=True, keep_results=False):
+               refine_on_csi=True, keep_results=False, build=True):
     """The whole chain on a read survey: RX calibration, JADE, wall fusion. Returns
     (FusedMap, info dict; info["fusion"] is the WallFusion, its CSI refiner holding the last
     map, for scripts that go on from it; with keep_results, info["jade_results"] the
     arguments WallFusion.add was given for each pose group, in order, for scripts that map
     part of the survey again). The wall model comes from the survey when it has one,
-    overriding fusion_settings.material."""
+    overriding fusion_settings.material. build=False stops before the map is built (FusedMap
+    None): for scripts that map the JADE results themselves."""
     from . import jade_pipeline, rx_calibration
     from .wall_fusion import FusionSettings, RadarGeometry, WallFusion
 
@@ -185,6 +186,9 @@ def map_survey(survey, fusion_settings=None, settings=None, system_delay_s=None,
     timings["jade_s"] = time.perf_counter() - started
     if groups == 0:
         raise ValueError("survey: no survey frames (only rx_reference frames, or none)")
+    if not build:
+        info["fusion"] = fusion
+        return None, info
     started = time.perf_counter()
     fused = fusion.build_map()
     timings["fusion_s"] = time.perf_counter() - started

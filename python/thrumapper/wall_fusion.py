@@ -650,7 +650,7 @@ class _PoseGroup:
     paths: list = field(default_factory=list)  # dicts: aoa_rad, delay_s, power, stage, count
     csi: list = field(default_factory=list)  # (M, N) frames for the refiner, with csi_weights
     csi_weights: np.ndarray = None
-    # JOINT_PATH_REFIT: the paths refitted on the CSI, and the (paths, CSI frames) they are of
+    # JOINT_PATH_REFIT: the paths refitted on the CSI, and the (frames, constants) they are of
     refit: list = None
     refit_of: tuple = None
 
@@ -1054,11 +1054,13 @@ class WallFusion:
 
     def _refit_paths(self):
         """JOINT_PATH_REFIT: each group's paths refitted on its CSI (CsiWallRefiner.refit_paths),
-        again only for a group whose paths or CSI changed since. Returns how many groups were
-        refitted."""
+        again only for a group that took a frame since (every add() does: its paths and CSI)
+        or when the JOINT_REFIT_ constants changed. Returns how many groups were refitted."""
         count = 0
+        constants = (self.JOINT_REFIT_MAX_DEG, self.JOINT_REFIT_MAX_M, self.JOINT_REFIT_STRONG_DB,
+                     self.JOINT_REFIT_PAIR_M, self.JOINT_REFIT_PAIR_DEG)
         for g, group in enumerate(self.groups):
-            key = (len(group.paths), group.frames, sum(q["count"] for q in group.paths))
+            key = (group.frames, constants)
             if not group.paths or g not in self.refiner.poses or group.refit_of == key:
                 continue
             aoa, delay = self.refiner.refit_paths(
@@ -2572,12 +2574,15 @@ class WallFusion:
         s = self.settings
         odometry = np.array([g.pose for g in self.groups]).reshape(-1, 3)
         frame_indices = [g.frame_index for g in self.groups]
+        # the refitted paths are screened and counted as the map uses them
+        refitted = self._timed("joint path refit", self._refit_paths) \
+            if self.JOINT_PATH_REFIT and self._fits_on_csi else None
         far, weak, near = self._screen_counts()
         stats = dict(self.counts)
         stats.update({"poses": len(self.groups), "skipped_far": far, "skipped_weak": weak, "skipped_near": near,
                       "direct_delay_s": self.direct_delay_s, "material": getattr(self.material, "name", None)})
-        if self.JOINT_PATH_REFIT and self._fits_on_csi:
-            stats["paths_refitted_groups"] = self._timed("joint path refit", self._refit_paths)
+        if refitted is not None:
+            stats["paths_refitted_groups"] = refitted
         det = self._timed("echo geometry", self._detections)
         if det is None or not len(self.groups):
             stats.update({"echoes": 0, "walls": 0, "corners": 0, "ghosts": 0, "elapsed_s": time.perf_counter() - started,

@@ -210,9 +210,24 @@ class CsiWallRefiner:
 
     # -- the model -----------------------------------------------------------------------
     def _far_field(self, aoa_rad, delay_s):
-        u = bistatic.bearing_vector(aoa_rad)
-        space = np.exp(2j * np.pi * np.outer(self._rx_rel @ u, self.freqs_hz) / C)  # (M, N)
-        return (space * np.exp(-2j * np.pi * self.freqs_hz * delay_s) * self._sys).ravel()
+        return self._plane_waves([aoa_rad], [delay_s])[:, 0]
+
+    def _plane_waves(self, aoa_rad, delay_s, derivatives=False):
+        """Far-field plane waves arriving from aoa_rad after delay_s (arrays of one length K)
+        on every RX element and subcarrier, the system delay included: (M*N, K); with
+        derivatives, also their derivatives in angle (per rad) and in path length (per m)."""
+        aoa = np.asarray(aoa_rad, float).reshape(-1)
+        delay = np.asarray(delay_s, float).reshape(-1)
+        u = np.stack((np.cos(aoa), np.sin(aoa)))  # (2, K)
+        along = self._rx_rel @ u  # (M, K)
+        f = self.freqs_hz[None, :, None]
+        space = np.exp(2j * np.pi * (along[:, None, :] * f) / C)  # (M, N, K)
+        waves = space * np.exp(-2j * np.pi * f * delay[None, None, :]) * self._sys[None, :, None]
+        if not derivatives:
+            return waves.reshape(-1, aoa.size)
+        across = self._rx_rel @ np.stack((-np.sin(aoa), np.cos(aoa)))
+        wave = 2j * np.pi * f / C  # phase per metre
+        return tuple(w.reshape(-1, aoa.size) for w in (waves, waves * (wave * across[:, None, :]), -waves * wave))
 
     # -- JADE's paths refitted together ---------------------------------------------------
     #: refit_paths: Levenberg-Marquardt iterations at most, and the step (rad, m) below which
@@ -252,19 +267,12 @@ class CsiWallRefiner:
         data = self.poses[g]
         rows = data.rows.T  # (M*N, frames)
         cancelled = self._orthonormal(list(data.cancelled()))
-        wave = 2j * np.pi * self.freqs_hz / C  # (N,) phase per metre
 
         def columns(theta, path_m):
             """The paths' responses and their derivatives in angle and path length, each
             (M*N, count), with the cancelled direct path projected out."""
-            along = self._rx_rel @ np.stack((np.cos(theta), np.sin(theta)))  # (M, count)
-            across = self._rx_rel @ np.stack((-np.sin(theta), np.cos(theta)))
-            a = np.exp(wave[None, :, None] * (along[:, None, :] - path_m[None, None, :])) * self._sys[None, :, None]
-            out = []
-            for block in (a, a * (wave[None, :, None] * across[:, None, :]), -a * wave[None, :, None]):
-                block = block.reshape(-1, count)
-                out.append(block - cancelled @ (cancelled.conj().T @ block))
-            return out
+            return [block - cancelled @ (cancelled.conj().T @ block)
+                    for block in self._plane_waves(theta, path_m / C, derivatives=True)]
 
         def solved(theta, path_m):
             a, d_theta, d_path = columns(theta, path_m)
