@@ -15,6 +15,12 @@ With --poses truth the fusion is given the true poses as its odometry (its pose 
 still runs, and may move them); with --poses truth-held it keeps them (no pose correction).
 What is left is the map's own error, what the poses cannot be blamed for.
 
+With --sources N, each variant's N largest sources of detection error per class follow the
+table, pooled over the seeds (thrumapper-eval's "error_sources": detections more than 0.3 m
+from every true wall of their class, on a true wall of the other class or near none, by
+wall), as shares of the class's squared error summed over the seeds: the RMS over many
+surveys is often a few detections on one wall.
+
 A mapper that understood the scene would map every variant at least as well as the whole
 scene; where a variant maps worse, the mapper leans on what was taken away, or a decision of
 its (a class, a doorway, a side wall) flips without it (docs/mapping.md, "The whole chain
@@ -22,7 +28,7 @@ without one element of the scene").
 
 Usage: benchmarks/scene_ablation.py [--scene office_floor] [--seeds own 1 2 3]
            [--variants full no_clutter ...] [--poses odometry|truth|truth-held]
-           [--out /tmp/thrumapper_ablation] [--jobs 2]
+           [--out /tmp/thrumapper_ablation] [--jobs 2] [--sources 3]
        (PYTHONPATH=build/test_modules, or the module installed; about 15 s a survey a core)
 A variant that takes nothing away from the scene (no_doors on a scene without doors), or
 leaves it without a wall, is refused with a message naming it.
@@ -150,6 +156,13 @@ def score(job):
     true_drift = math.degrees(math.remainder((odometry[-1, 2] - odometry[0, 2]) - (true_h[-1] - true_h[0]),
                                              2.0 * math.pi)) / path_m
     classes = scores["classes"]
+    squared = {}  # the class's summed squared error, and that of each error source
+    for cls in evaluation.CLASSES:
+        d = classes[cls]["detections"]
+        total = (d["rms_m"] or 0.0) ** 2 * d["count"]
+        squared[cls] = {"total": total, "sources": [
+            {"why": e["why"], "wall": e["wall"], "count": e["count"], "squared_m2": e["share"] * total}
+            for e in d.get("error_sources", [])]}
     return {"variant": variant, "seed": seed, "poses": poses,
             "los_m": classes["line_of_sight"]["detections"]["rms_m"],
             "hidden_m": classes["hidden"]["detections"]["rms_m"],
@@ -157,7 +170,23 @@ def score(job):
             "hidden_coverage": classes["hidden"]["coverage"],
             "trajectory_m": (scores["trajectory"] or {}).get("rms_m"),
             "turn_deg": turn,
-            "drift_error_deg_per_m": fused.stats.get("odometry_drift_deg_per_m", 0.0) - true_drift}
+            "drift_error_deg_per_m": fused.stats.get("odometry_drift_deg_per_m", 0.0) - true_drift,
+            "squared_error": squared}
+
+
+def pooled_sources(rows, cls):
+    """The error sources of one class over rows (score's), as (share of the summed squared
+    error, why, wall, detections), largest first."""
+    total = sum(r["squared_error"][cls]["total"] for r in rows)
+    pooled = {}
+    for r in rows:
+        for e in r["squared_error"][cls]["sources"]:
+            key = (e["why"], e["wall"])
+            value, count = pooled.get(key, (0.0, 0))
+            pooled[key] = (value + e["squared_m2"], count + e["count"])
+    if total <= 0.0:
+        return []
+    return sorted(((v / total, why, wall, n) for (why, wall), (v, n) in pooled.items()), reverse=True)
 
 
 def _median(rows, key, absolute=False):
@@ -169,7 +198,8 @@ def main(argv=None):
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0],
         epilog="examples:\n  benchmarks/scene_ablation.py --seeds own 1 2 3 --variants full no_diffuse\n"
-               "  benchmarks/scene_ablation.py --scene skewed_walls --variants full no_clutter --poses truth-held",
+               "  benchmarks/scene_ablation.py --scene skewed_walls --variants full no_clutter --poses truth-held\n"
+               "  benchmarks/scene_ablation.py --seeds own 1 2 3 --variants full --sources 5   # what the RMS is made of",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     office_surveys.add_arguments(parser, "/tmp/thrumapper_ablation")
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS),
@@ -180,9 +210,14 @@ def main(argv=None):
                              "correction)")
     parser.add_argument("--jobs", type=int, default=2, help="surveys mapped at once (default 2)")
     parser.add_argument("--json", metavar="FILE", help="also write every survey's numbers to FILE")
+    parser.add_argument("--sources", type=int, default=0, metavar="N",
+                        help="after the table, each variant's N largest sources of detection error per class, "
+                             "pooled over the seeds (default 0: none)")
     args = parser.parse_args(argv)
     if args.jobs < 1:
         parser.error("--jobs must be >= 1")
+    if args.sources < 0:
+        parser.error("--sources must be >= 0")
     scene_yaml = office_surveys.scene_path(parser, args)
     try:
         paths = {v: variant_scene(scene_yaml, v, args.out) for v in args.variants}
@@ -215,6 +250,16 @@ def main(argv=None):
               f"{percent(_median(mine, 'los_coverage')):>7s} {percent(_median(mine, 'hidden_coverage')):>7s} "
               f"{fmt(_median(mine, 'trajectory_m'))} {fmt(_median(mine, 'turn_deg', True), 2)}° "
               f"{fmt(_median(mine, 'drift_error_deg_per_m', True))}°/m")
+    for v in args.variants if args.sources else ():
+        mine = [r for r in rows if r["variant"] == v]
+        for cls in evaluation.CLASSES:
+            print(f"\n{v}, {cls}: detections more than 0.3 m off, share of the squared error over the seeds")
+            found = pooled_sources(mine, cls)[:args.sources]
+            for share, why, wall, count in found:
+                where = "on a true wall of the other class" if why == "other_class" else "near no true wall, nearest"
+                print(f"  {100.0 * share:5.1f} %  {count:4d} detections {where}: {wall}")
+            if not found:
+                print("  none")
     return 0
 
 

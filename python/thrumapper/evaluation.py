@@ -18,6 +18,14 @@ many points as the truth's; otherwise the RMS distance of its points to the true
 "missed_walls" lists each true wall feature with at least MISSED_MIN_M of its face uncovered,
 worst first: its name (thrumapper-sim's truth names every wall), class, length, the length
 uncovered and where the uncovered stretch begins and ends, so a low coverage says which walls.
+"error_sources" (per class, under "detections") says where a large RMS comes from: the
+detections farther than coverage_tolerance_m from every true wall of their class, grouped by
+why: "other_class" (within the tolerance of a true wall of the other class: a wall found in
+the wrong class, a room's back wall seen through an open door mapped hidden) or "off_wall"
+(near no true wall of either class: a misplaced or ghost wall), and by the true wall they are
+nearest to, worst first, with the share of the class's squared detection error each carries.
+A map whose RMS is a few wrong-class detections needs a different fix from one whose every
+detection is 10 cm off.
 
 Lengths are measured by sampling every line at sample_m (1 cm) and weighting each sample by
 the length it stands for, so partial coverage of a segment is counted to the centimetre.
@@ -251,6 +259,41 @@ def _stats(distances):
 # ----------------------------------------------------------------------------------------
 # Scoring
 # ----------------------------------------------------------------------------------------
+def _nearest_wall(points, walls):
+    """For each point (Q, 2): the distance to the nearest of `walls` (truth wall dicts) and
+    that wall's index (-1 when there are none)."""
+    best = np.full(points.shape[0], np.inf)
+    which = np.full(points.shape[0], -1)
+    for i, wall in enumerate(walls):
+        d = distance_to_segments(points, *_segments([wall["coordinates"]]))
+        closer = d < best
+        best[closer], which[closer] = d[closer], i
+    return best, which
+
+
+def _error_sources(points, distances, cls, truth_walls, tolerance_m):
+    """Where the squared detection error of one class comes from (see the module's
+    docstring): [{"why", "wall", "count", "share", "rms_m"}], worst first."""
+    total = float(np.sum(distances ** 2))
+    far = np.flatnonzero(distances > tolerance_m)
+    if far.size == 0 or total <= 0.0:
+        return []
+    same = [w for w in truth_walls if w["class"] == cls]
+    other = [w for w in truth_walls if w["class"] != cls]
+    to_other, other_wall = _nearest_wall(points[far], other)
+    _, same_wall = _nearest_wall(points[far], same)
+    groups = {}
+    for n, i in enumerate(far):
+        if to_other[n] <= tolerance_m:
+            key = ("other_class", other[other_wall[n]].get("name"))
+        else:
+            key = ("off_wall", same[same_wall[n]].get("name") if same_wall[n] >= 0 else None)
+        groups.setdefault(key, []).append(distances[i])
+    out = [{"why": why, "wall": name, "count": len(d), "share": float(np.sum(np.square(d)) / total),
+            "rms_m": float(np.sqrt(np.mean(np.square(d))))} for (why, name), d in groups.items()]
+    return sorted(out, key=lambda e: -e["share"])
+
+
 def _score_openings(ours, true, tolerance_m):
     """Open doorways: a true one is found when a map opening's middle lies within
     tolerance_m of its middle (each map opening counts once); for those found, the RMS
@@ -337,6 +380,9 @@ def score_map(map_data, truth_data, *, coverage_tolerance_m=0.3, false_tolerance
         detection = _stats(distances)
         if t_start.shape[0] == 0:
             detection["note"] = "the truth has no wall of this class"
+        else:
+            detection["error_sources"] = _error_sources(points, distances, cls, truth_data.walls,
+                                                        coverage_tolerance_m)
         mine = [c for w, c in zip(scored_walls, coverage) if w["class"] == cls]
         weights = np.concatenate([c[1] for c in mine]) if mine else np.zeros(0)
         covered = np.concatenate([c[2] for c in mine]) if mine else np.zeros(0, bool)
@@ -401,9 +447,10 @@ def _fmt(value, unit="", scale=1.0, digits=3):
     return f"{value * scale:.{digits}f}{unit}"
 
 
-def format_table(scores, missed=5):
+def format_table(scores, missed=5, sources=3):
     """The scores as a readable plain-text table; `missed`: how many of the most uncovered
-    true walls to list (0: none)."""
+    true walls to list (0: none); `sources`: how many of each class's largest error sources
+    (0: none)."""
     tol = scores["tolerances_m"]
     lines = [f"map:   {scores['map']}", f"truth: {scores['truth']}", ""]
     header = f"{'':34s}{'line_of_sight':>16s}{'hidden':>16s}"
@@ -451,4 +498,14 @@ def format_table(scores, missed=5):
             a, b = m["uncovered_from"], m["uncovered_to"]
             lines.append(f"  {(m['name'] or '(unnamed)'):20s} {m['class']:14s} {m['uncovered_m']:5.2f} of "
                          f"{m['length_m']:5.2f} m uncovered, ({a[0]:.2f}, {a[1]:.2f}) .. ({b[0]:.2f}, {b[1]:.2f})")
+    for cls in CLASSES:
+        found = scores["classes"][cls]["detections"].get("error_sources") or []
+        if sources > 0 and found:
+            lines.append("")
+            lines.append(f"{cls} detections more than {tol['coverage']:g} m off (the squared error they carry):")
+            for e in found[:sources]:
+                where = ("on a true wall of the other class" if e["why"] == "other_class"
+                         else "near no true wall; nearest of the class")
+                lines.append(f"  {e['share'] * 100:5.1f} %  {e['count']:4d} detections, RMS {e['rms_m']:.2f} m, "
+                             f"{where}: {e['wall'] or '(unnamed)'}")
     return "\n".join(lines)

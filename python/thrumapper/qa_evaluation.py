@@ -35,6 +35,14 @@ def _feature(geometry_type, coordinates, **properties):
             "properties": properties}
 
 
+def _cli(*args):
+    """thrumapper-eval run with args: (exit status, stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        status = cli_eval.main(list(args))
+    return status, out.getvalue(), err.getvalue()
+
+
 def _collection(features):
     return {"type": "FeatureCollection", "thrumapper:crs": "local-metres", "features": features}
 
@@ -71,6 +79,21 @@ def _map():
 
 
 class qa_evaluation(gr_unittest.TestCase):
+    def _list_option(self, map_path, truth_path, option, one_has, one_lacks, none_lacks):
+        """A list below thrumapper-eval's table (--missed, --sources): with 1 it holds
+        one_has and not one_lacks (the second entry), with 0 it is gone, -1 is refused."""
+        status, out, _ = _cli(map_path, truth_path, option, "1")
+        self.assertEqual(status, 0)
+        for text in one_has:
+            self.assertIn(text, out)
+        self.assertNotIn(one_lacks, out)
+        status, out, _ = _cli(map_path, truth_path, option, "0")
+        self.assertEqual(status, 0)
+        self.assertNotIn(none_lacks, out)
+        status, _, err = _cli(map_path, truth_path, option, "-1")
+        self.assertEqual(status, 2)
+        self.assertIn(f"{option} must be >= 0", err)
+
     def test_scores_match_hand_computation(self):
         scores = evaluation.score_map(_map(), _truth())
         los, hidden = scores["classes"]["line_of_sight"], scores["classes"]["hidden"]
@@ -225,20 +248,39 @@ class qa_evaluation(gr_unittest.TestCase):
             for path, data in ((map_path, _map()), (truth_path, truth)):
                 with open(path, "w") as handle:
                     json.dump(data, handle)
-            out = io.StringIO()
-            with contextlib.redirect_stdout(out):
-                self.assertEqual(cli_eval.main([map_path, truth_path, "--missed", "1"]), 0)
-            self.assertIn("true walls least covered (1 of 2", out.getvalue())
-            self.assertIn("(unnamed)", out.getvalue())
-            self.assertNotIn("corridor_south", out.getvalue())
-            out = io.StringIO()
-            with contextlib.redirect_stdout(out):
-                self.assertEqual(cli_eval.main([map_path, truth_path, "--missed", "0"]), 0)
-            self.assertNotIn("least covered", out.getvalue())
-            err = io.StringIO()
-            with contextlib.redirect_stderr(err):
-                self.assertEqual(cli_eval.main([map_path, truth_path, "--missed", "-1"]), 2)
-            self.assertIn("--missed must be >= 0", err.getvalue())
+            self._list_option(map_path, truth_path, "--missed", ("true walls least covered (1 of 2", "(unnamed)"),
+                              "corridor_south", "least covered")
+
+    def test_error_sources_say_wrong_class_or_no_wall(self):
+        # line of sight: ten detections 0.1 m off its face (squared 0.1 m²), two on the hidden
+        # face 2 m behind it (8 m²: a wall mapped in the wrong class) and one 2 m in front of
+        # it, 4 m from the hidden face (4 m²: near no true wall); hidden: all within 0.3 m
+        truth = _truth()
+        truth["features"][0]["properties"]["name"] = "corridor"
+        truth["features"][1]["properties"]["name"] = "back"
+        ours = _map()
+        ours["features"][0]["geometry"]["coordinates"] += [[3.0, -3.0], [4.0, -3.0], [5.0, 1.0]]
+        scores = evaluation.score_map(ours, truth)
+        los = scores["classes"]["line_of_sight"]["detections"]
+        self.assertAlmostEqual(los["rms_m"], math.sqrt(12.1 / 13), delta=1e-9)
+        sources = los["error_sources"]
+        self.assertEqual([(e["why"], e["wall"], e["count"]) for e in sources],
+                         [("other_class", "back", 2), ("off_wall", "corridor", 1)])
+        self.assertAlmostEqual(sources[0]["share"], 8.0 / 12.1, delta=1e-9)
+        self.assertAlmostEqual(sources[1]["share"], 4.0 / 12.1, delta=1e-9)
+        self.assertAlmostEqual(sources[0]["rms_m"], 2.0, delta=1e-9)
+        self.assertEqual(scores["classes"]["hidden"]["detections"]["error_sources"], [])
+        # a wider tolerance takes the 2 m detections for near misses: no source left
+        wide = evaluation.score_map(ours, truth, coverage_tolerance_m=2.5)
+        self.assertEqual(wide["classes"]["line_of_sight"]["detections"]["error_sources"], [])
+        with tempfile.TemporaryDirectory() as tmp:
+            map_path, truth_path = os.path.join(tmp, "m.geojson"), os.path.join(tmp, "t.geojson")
+            for path, data in ((map_path, ours), (truth_path, truth)):
+                with open(path, "w") as handle:
+                    json.dump(data, handle)
+            self._list_option(map_path, truth_path, "--sources",
+                              ("66.1 %     2 detections, RMS 2.00 m, on a true wall of the other class: back",),
+                              "nearest of the class: corridor", "squared error they carry")
 
     def test_truth_scores_perfectly_against_itself(self):
         try:

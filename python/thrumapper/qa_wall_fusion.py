@@ -15,8 +15,8 @@ from gnuradio import blocks, gr, gr_unittest
 from gnuradio.thrumapper import bistatic, evaluation
 from gnuradio.thrumapper.survey_blocks import pose_message
 from gnuradio.thrumapper.testing import drifting_corridor, exact_echoes, free_finished_flowgraphs, straight_poses, wait_for
-from gnuradio.thrumapper.wall_fusion import (HIDDEN, LOS, FusionError, FusionSettings, MapWall, RadarGeometry,
-                                             WallFusion, map_to_pmt, wall_fusion)
+from gnuradio.thrumapper.wall_fusion import (HIDDEN, LOS, FusionError, FusionSettings, MapOpening, MapWall,
+                                             RadarGeometry, WallFusion, map_to_pmt, wall_fusion)
 
 C = bistatic.SPEED_OF_LIGHT_M_S
 RADAR = RadarGeometry.uca_pair(subcarriers=64)
@@ -607,6 +607,55 @@ class qa_wall_fusion(gr_unittest.TestCase):
         outer_wall = wall_near(fused, 4.0)
         self.assertLess(abs(0.5 * (outer_wall.start_m[1] + outer_wall.end_m[1]) - 4.0), 0.05)
         self.assertEqual(outer_wall.cls, "hidden")
+
+    def test_view_through_a_doorway_past_a_double_of_the_wall(self):
+        """A corridor wall (face y = -1) with an open doorway at x = 2.05-2.95 m, a room's back
+        wall 2 m behind it (face y = -3, x = -0.5-6 m) and a second piece of that wall fitted
+        0.25 m in front of it (x = 0.5-3.5 m, as the fusion maps a wall twice now and then);
+        poses along y = 0, x = 0-8 m. Through the doorway the whole back wall is in view
+        (within 8 m and 75 deg of its normal from some pose, as the truth maps say): the
+        double is the same wall, not a wall between, and does not hide the stretch behind it
+        (_seen_through_doorways). A dip in the back wall's echo on its own line bounds the view
+        (a partition); a dip on the double's line, 0.25 m off, does not. With every mapped wall
+        blocking (VISIBLE_SAME_LINE_M = None), the stretch behind the double stays hidden."""
+        up = np.array([0.0, 1.0])
+
+        def wall(x0, x1, y, cls):
+            return MapWall(np.array([x0, y]), np.array([x1, y]), up.copy(), cls, 0.9, 10, 10, 0.01)
+
+        def seen(dips=(), **changes):
+            fusion = WallFusion(RADAR, exact_settings(correct_poses=False))
+            for name, value in changes.items():
+                setattr(fusion, name, value)
+            walls = [wall(-2.0, 2.05, -1.0, "line_of_sight"), wall(2.95, 10.0, -1.0, "line_of_sight"),
+                     wall(-0.5, 6.0, -3.0, "hidden"), wall(0.5, 3.5, -2.75, "hidden")]
+            opening = MapOpening(np.array([2.05, -1.0]), np.array([2.95, -1.0]), up.copy(), 0.9, 4, 0.1)
+            detections = {"line_of_sight": [], "hidden": [np.array([x, -3.0]) for x in np.arange(0.0, 6.01, 0.5)]}
+            echoes = {"line_of_sight": [], "hidden": []}
+            fusion._seen_through_doorways(walls, [], detections, echoes, [opening], straight_poses(0.0, 8.0),
+                                          [({"normal": up, "centre": np.array([3.0, y]), "direction": np.array([1.0, 0.0])},
+                                            np.array([[x, y]]), np.array([False])) for x, y in dips])
+            back = sorted((w.start_m[0], w.end_m[0]) for w in walls
+                          if w.cls == "line_of_sight" and abs(w.start_m[1] + 3.0) < 1e-9)
+            return back, np.array(detections["line_of_sight"]).reshape(-1, 2)[:, 0]
+
+        back, moved = seen()
+        self.assertEqual(len(back), 1, back)
+        self.assertLess(back[0][0], -0.4)
+        self.assertGreater(back[0][1], 5.9)
+        np.testing.assert_allclose(np.sort(moved), np.arange(0.0, 6.01, 0.5))
+        # a partition's dip on the back wall's line at x = 5 ends the view there; one on the
+        # double's line does not
+        back, _ = seen(dips=[(5.0, -3.0)])
+        self.assertLess(abs(back[-1][1] - 5.0), 0.11, back)
+        back, _ = seen(dips=[(4.0, -2.75)])
+        self.assertGreater(back[-1][1], 5.9, back)
+        back, _ = seen(dips=[(4.0, -2.75)], VISIBLE_DIP_LINE_M=0.3)  # (taken for the wall's own)
+        self.assertLess(abs(back[-1][1] - 4.0), 0.11, back)
+        # every mapped wall blocking: behind the double (x = 0.5-3.5 m) the back wall is hidden
+        back, moved = seen(VISIBLE_SAME_LINE_M=None)
+        self.assertFalse(any(x0 < 2.0 < x1 for x0, x1 in back), back)
+        self.assertFalse(np.any((moved > 0.7) & (moved < 3.3)), moved)
 
     def test_gap_between_pieces_of_one_wall_is_inferred(self):
         """A corridor wall whose echoes are missing for 2 m (x = 2 .. 4) is drawn across the

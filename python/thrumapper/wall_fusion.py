@@ -3920,6 +3920,13 @@ class WallFusion:
     VISIBLE_MAX_INCIDENCE_DEG = 75.0
     VISIBLE_MIN_M = 0.3
     VISIBLE_BEYOND_DOOR_M = 4.0
+    #: a wall within VISIBLE_SAME_LINE_M of the seen wall's line at both ends and within
+    #: OPENING_CUT_DEG of its direction does not block the view of it: it is a second piece
+    #: of the same wall fitted off its line (a room's back wall mapped twice, 0.2-0.3 m
+    #: apart), not a wall in front of it (None: every mapped wall blocks)
+    VISIBLE_SAME_LINE_M = 0.5
+    #: a partition's dip bounds the view of a wall when it lies within this of the wall's line
+    VISIBLE_DIP_LINE_M = 0.15
 
     def _seen_through_doorways(self, walls, corners, detections, echoes, openings, poses, dips=()):
         """Hidden walls cut into the stretches a pose sees through an open doorway (class
@@ -3965,11 +3972,12 @@ class WallFusion:
                     doors.append((o.start_m, o.end_m))
             if not doors:
                 continue
-            # ...and not past a partition's dip on its line, on either side of the door
+            # ...and not past a partition's dip on its line, on either side of the door (a dip
+            # within VISIBLE_DIP_LINE_M of the line: one on a double of the wall, fitted 0.2-0.3 m
+            # off it, is where the double's echo ends, not a partition)
             dips_t = [float((q - w.start_m) @ e) for line, found, _ in dips
                       if abs(float(line["normal"] @ w.normal)) >= cos_line
-                      and abs(float((0.5 * (w.start_m + w.end_m) - line["centre"]) @ line["normal"])) <= 0.3
-                      for q in found]
+                      for q in found if abs(float((q - w.start_m) @ w.normal)) <= self.VISIBLE_DIP_LINE_M]
             for o in facing:
                 mid = float((0.5 * (o.start_m + o.end_m) - w.start_m) @ e)
                 half = 0.5 * o.width_m
@@ -3992,7 +4000,7 @@ class WallFusion:
                 through |= bistatic.segments_cross(a, b, d0, d1)
             blocked = np.zeros(q.size, bool)
             for j, other in enumerate(walls):
-                if j != i and other.length_m > 0:
+                if j != i and other.length_m > 0 and not self._same_line(w, other, cos_line):
                     blocked |= bistatic.segments_cross(a, b, other.start_m, other.end_m)
             view = np.zeros(count, bool)
             view[q[through & ~blocked]] = True
@@ -4031,6 +4039,14 @@ class WallFusion:
                                             t1 + margin if s1 == count else t1, e)
             self._split_wall(walls, corners, i, made)
         return seen_pieces
+
+    def _same_line(self, wall, other, cos_line):
+        """Whether map wall `other` lies along `wall`'s line (VISIBLE_SAME_LINE_M at both ends,
+        cos_line of its direction): a double of it, for _seen_through_doorways."""
+        if self.VISIBLE_SAME_LINE_M is None or abs(float(other.normal @ wall.normal)) < cos_line:
+            return False
+        return all(abs(float((end - wall.start_m) @ wall.normal)) <= self.VISIBLE_SAME_LINE_M
+                   for end in (other.start_m, other.end_m))
 
     def _move_to_sight(self, points_by_class, wall, t0, t1, e):
         """The hidden points (lists of (2,) in points_by_class) on wall's stretch [t0, t1]
