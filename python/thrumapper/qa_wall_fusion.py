@@ -617,18 +617,25 @@ class qa_wall_fusion(gr_unittest.TestCase):
         double is the same wall, not a wall between, and does not hide the stretch behind it
         (_seen_through_doorways). A dip in the back wall's echo on its own line bounds the view
         (a partition); a dip on the double's line, 0.25 m off, does not. With every mapped wall
-        blocking (VISIBLE_SAME_LINE_M = None), the stretch behind the double stays hidden."""
+        blocking (VISIBLE_SAME_LINE_M = None), the stretch behind the double stays hidden. A
+        piece fitted off its line in the corridor, between the doorway and the track (from
+        (1.5, -0.8) to (4.0, -0.5)), does not block the view either
+        (VISIBLE_BLOCKED_PAST_DOOR_ONLY); taken as blocking, it hides most of the back wall."""
         up = np.array([0.0, 1.0])
 
         def wall(x0, x1, y, cls):
             return MapWall(np.array([x0, y]), np.array([x1, y]), up.copy(), cls, 0.9, 10, 10, 0.01)
 
-        def seen(dips=(), **changes):
+        def seen(dips=(), in_corridor=False, **changes):
             fusion = WallFusion(RADAR, exact_settings(correct_poses=False))
             for name, value in changes.items():
                 setattr(fusion, name, value)
             walls = [wall(-2.0, 2.05, -1.0, "line_of_sight"), wall(2.95, 10.0, -1.0, "line_of_sight"),
                      wall(-0.5, 6.0, -3.0, "hidden"), wall(0.5, 3.5, -2.75, "hidden")]
+            if in_corridor:
+                normal = np.array([-0.3, 2.5]) / math.hypot(0.3, 2.5)
+                walls.append(MapWall(np.array([1.5, -0.8]), np.array([4.0, -0.5]), normal, "line_of_sight",
+                                     0.9, 10, 10, 0.01))
             opening = MapOpening(np.array([2.05, -1.0]), np.array([2.95, -1.0]), up.copy(), 0.9, 4, 0.1)
             detections = {"line_of_sight": [], "hidden": [np.array([x, -3.0]) for x in np.arange(0.0, 6.01, 0.5)]}
             echoes = {"line_of_sight": [], "hidden": []}
@@ -652,6 +659,12 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertGreater(back[-1][1], 5.9, back)
         back, _ = seen(dips=[(4.0, -2.75)], VISIBLE_DIP_LINE_M=0.3)  # (taken for the wall's own)
         self.assertLess(abs(back[-1][1] - 4.0), 0.11, back)
+        # a piece in the corridor, in front of the doorway: the back wall still in view
+        back, _ = seen(in_corridor=True)
+        self.assertEqual(len(back), 1, back)
+        self.assertGreater(back[0][1] - back[0][0], 6.3, back)
+        back, _ = seen(in_corridor=True, VISIBLE_BLOCKED_PAST_DOOR_ONLY=False)
+        self.assertLess(sum(x1 - x0 for x0, x1 in back), 3.0, back)
         # every mapped wall blocking: behind the double (x = 0.5-3.5 m) the back wall is hidden
         back, moved = seen(VISIBLE_SAME_LINE_M=None)
         self.assertFalse(any(x0 < 2.0 < x1 for x0, x1 in back), back)

@@ -862,6 +862,50 @@ class qa_wall_refinement(gr_unittest.TestCase):
         self.assertEqual(closed.openings, [])
         self.assertTrue(corridor_cover(closed, 2.5), closed.walls)
 
+    def test_open_doorway_found_where_the_mapped_wall_ends(self):
+        """The corridor of test_open_doorway_found_and_the_wall_cut_there with JADE's echoes
+        of its south wall dropped past x = 3.15 m (as where another path throws them off the
+        wall's line): the wall is mapped up to the open door (x = 2.05-2.95 m) and no further,
+        so no mapped piece holds its echo beyond the door. The doorway test looks past the
+        line's mapped end (_openings_beyond), where the CSI still holds the wall's echo, and
+        finds the door within 0.2 m of its jambs; without (OPENING_BEYOND_M = 0) it does not.
+        A wall that really ends at x = 2.05 m, with nothing beyond, gives no opening; it would
+        without the echo held past the gap (OPENING_BEYOND_HOLD_RATIO = 0: a gap 2.1-2.7 m,
+        the faint answer of the line's extension beyond it taken for the wall going on)."""
+        wf_class = importlib.import_module("gnuradio.thrumapper.wall_fusion").WallFusion
+        data = open_door_corridor_data()
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+        wall_delay_s = 2.0 * math.hypot(1.0, 0.35) / bistatic.SPEED_OF_LIGHT_M_S  # face 1 m away, baseline 0.7 m
+        add = wf_class.add
+
+        def add_without_the_wall_past_the_door(fusion, pose, paths, *args, **kwargs):
+            if pose[0] > 3.15:
+                paths = [p for p in paths if not (abs(fusion._path_values(p)[1] - wall_delay_s) < 1.5e-9
+                                                  and math.sin(fusion._path_values(p)[0]) < 0.0)]
+            return add(fusion, pose, paths, *args, **kwargs)
+
+        wf_class.add = add_without_the_wall_past_the_door
+        try:
+            fused = mapped_with(sc, res)
+            without = mapped_with(sc, res, OPENING_BEYOND_M=0.0)
+        finally:
+            wf_class.add = add
+        corridor = [w for w in fused.walls if abs(w.start_m[1] + 1.0) < 0.2 and abs(w.end_m[1] + 1.0) < 0.2]
+        self.assertTrue(corridor and max(max(w.start_m[0], w.end_m[0]) for w in corridor) < 2.5, fused.walls)
+        self.assertEqual(len(fused.openings), 1, fused.openings)
+        xs = sorted((fused.openings[0].start_m[0], fused.openings[0].end_m[0]))
+        self.assertLess(abs(xs[0] - 2.05), 0.2, xs)
+        self.assertLess(abs(xs[1] - 2.95), 0.2, xs)
+        self.assertEqual(without.openings, [])
+
+        data["walls"][0] = dict(data["walls"][0], segment=[[-2.0, -1.075], [2.05, -1.075]])
+        data["doors"] = []
+        ends = scene.load_scene(data)
+        ends_res = building_sim.simulate_survey(ends, progress=False)
+        self.assertEqual(mapped_with(ends, ends_res).openings, [])
+        self.assertEqual(len(mapped_with(ends, ends_res, OPENING_BEYOND_HOLD_RATIO=0.0).openings), 1)
+
     def test_open_doorway_found_beside_a_strong_direct_path_leak(self):
         """The corridor above with TX chains 10 degrees off (0.5 dB): the direct path they leave
         after the nominal one is cancelled holds -3 dB of the data, and the fusion models it.

@@ -3533,6 +3533,13 @@ class WallFusion:
     #: the phase steps for the drift, office_floor seed 1's north corridor wall had 4.6 m
     #: unmapped round its open door; the default maps the same to 0.1 mm)
     OPENING_LINE_GAP_M = 8.0
+    #: ...and looked for this far past the line's mapped ends (_openings_beyond: the wall
+    #: beyond a door mapped off its line; office_floor seed 4 and office_floor_drift seed 11),
+    #: where the first OPENING_BEYOND_HOLD_POSES poses past the doorway hold the echo at
+    #: OPENING_BEYOND_HOLD_RATIO or more (0: not looked for)
+    OPENING_BEYOND_M = 2.0
+    OPENING_BEYOND_HOLD_POSES = 2
+    OPENING_BEYOND_HOLD_RATIO = 0.7
 
     def _openings(self, state, poses, wall_cls, side_walls=()):
         """Open doorways in the line-of-sight walls, found on the CSI ([MapOpening]).
@@ -3571,8 +3578,12 @@ class WallFusion:
             ways = self.OPENING_LEAK_WAYS if self.refiner.direct_leak_modelled() else (True,)
             on_line = []  # (t0, t1, MapOpening)
             for leak in ways:
-                t, _, ratio = self._gain_profile(line, pieces, poses, hull, 2 * self.OPENING_MIN_POSES + 1, leak=leak)
-                for t0, t1, opening in self._openings_along(line, spans, members, t, ratio):
+                min_near = 2 * self.OPENING_MIN_POSES + 1
+                t, _, ratio = self._gain_profile(line, pieces, poses, hull, min_near, leak=leak)
+                candidates = self._openings_along(line, spans, members, t, ratio)
+                if self.OPENING_BEYOND_M > 0:
+                    candidates += self._openings_beyond(line, pieces, spans, members, poses, hull, min_near, leak)
+                for t0, t1, opening in candidates:
                     overlapping = [n for n, (a, b, _) in enumerate(on_line) if a < t1 and t0 < b]
                     if not overlapping:
                         on_line.append((t0, t1, opening))
@@ -3580,6 +3591,27 @@ class WallFusion:
                         on_line = [q for n, q in enumerate(on_line) if n not in overlapping] + [(t0, t1, opening)]
             found.extend(opening for _, _, opening in on_line)
         return found
+
+    def _openings_beyond(self, line, pieces, spans, members, poses, hull, min_near, leak):
+        """[(t0, t1, MapOpening)]: the doorways at a line's mapped ends (_openings_along on
+        the gain profile OPENING_BEYOND_M past them), where the wall beyond the door was
+        mapped off its line or not at all (its echoes there thrown off by another path), so
+        that no mapped piece holds the echo on the door's far side. There, the line is a
+        hypothesis: the first OPENING_BEYOND_HOLD_POSES poses past the doorway must find its
+        echo at OPENING_BEYOND_HOLD_RATIO of the line's median nearby or more, as a wall that
+        goes on does; the edge of another wall crossing the extension, or none, answers
+        faintly. Doorways within the mapped ends are _openings_along's alone."""
+        wide = (hull[0] - self.OPENING_BEYOND_M, hull[1] + self.OPENING_BEYOND_M)
+        t, _, ratio = self._gain_profile(line, pieces, poses, wide, min_near, leak=leak)
+        out = []
+        for t0, t1, opening in self._openings_along(line, spans, members, t, ratio):
+            if hull[0] <= t0 and t1 <= hull[1]:
+                continue
+            past = ratio[t > t1] if t1 > hull[1] else ratio[t < t0][::-1]
+            held = past[:self.OPENING_BEYOND_HOLD_POSES]
+            if held.size == self.OPENING_BEYOND_HOLD_POSES and np.all(held >= self.OPENING_BEYOND_HOLD_RATIO):
+                out.append((t0, t1, opening))
+        return out
 
     def _openings_along(self, line, spans, members, t, ratio):
         """[(t0, t1, MapOpening)]: the doorways of one line's gain profile (t along it, ratio
@@ -3927,6 +3959,12 @@ class WallFusion:
     VISIBLE_SAME_LINE_M = 0.5
     #: a partition's dip bounds the view of a wall when it lies within this of the wall's line
     VISIBLE_DIP_LINE_M = 0.15
+    #: only walls between the seen wall and the doorway block the view, not those between the
+    #: doorway and the robot: that stretch is the corridor, where the doorway test found the
+    #: wall's echo gone in the doorway and held beside it from these poses, and a wall mapped
+    #: there is a fit thrown off its line (office_floor seed 4: a piece from (13.5, 1.0) to
+    #: (21.2, 0.1) in front of the door)
+    VISIBLE_BLOCKED_PAST_DOOR_ONLY = True
 
     def _seen_through_doorways(self, walls, corners, detections, echoes, openings, poses, dips=()):
         """Hidden walls cut into the stretches a pose sees through an open doorway (class
@@ -3996,12 +4034,18 @@ class WallFusion:
             b = robots[p]
             a = points[q] + 0.02 * (b - points[q])  # stopped short of the wall's own face
             through = np.zeros(q.size, bool)
+            stop = b.copy()  # where a wall blocks the view: up to the robot, or up to the door
             for d0, d1 in doors:
-                through |= bistatic.segments_cross(a, b, d0, d1)
+                hit = bistatic.segments_cross(a, b, d0, d1)
+                if self.VISIBLE_BLOCKED_PAST_DOOR_ONLY and hit.any():
+                    u, r = d1 - d0, b[hit] - a[hit]
+                    along_ray = ((d0[0] - a[hit, 0]) * u[1] - (d0[1] - a[hit, 1]) * u[0]) / (r[:, 0] * u[1] - r[:, 1] * u[0])
+                    stop[hit] = a[hit] + along_ray[:, None] * r
+                through |= hit
             blocked = np.zeros(q.size, bool)
             for j, other in enumerate(walls):
                 if j != i and other.length_m > 0 and not self._same_line(w, other, cos_line):
-                    blocked |= bistatic.segments_cross(a, b, other.start_m, other.end_m)
+                    blocked |= bistatic.segments_cross(a, stop, other.start_m, other.end_m)
             view = np.zeros(count, bool)
             view[q[through & ~blocked]] = True
             view &= near_door
