@@ -876,7 +876,8 @@ class qa_wall_refinement(gr_unittest.TestCase):
         data = open_door_corridor_data()
         sc = scene.load_scene(data)
         res = building_sim.simulate_survey(sc, progress=False)
-        wall_delay_s = 2.0 * math.hypot(1.0, 0.35) / bistatic.SPEED_OF_LIGHT_M_S  # face 1 m away, baseline 0.7 m
+        half_baseline_m = 0.5 * math.hypot(*(np.mean(res.rx_elements_m, axis=0) - np.mean(res.tx_elements_m, axis=0)))
+        wall_delay_s = 2.0 * math.hypot(1.0, half_baseline_m) / bistatic.SPEED_OF_LIGHT_M_S  # the face 1 m away
         add = wf_class.add
 
         def add_without_the_wall_past_the_door(fusion, pose, paths, *args, **kwargs):

@@ -276,8 +276,8 @@ class CsiWallRefiner:
 
         def solved(theta, path_m):
             a, d_theta, d_path = columns(theta, path_m)
-            q, _ = np.linalg.qr(a)
-            gains = np.linalg.lstsq(a, rows, rcond=None)[0]  # (count, frames)
+            q, r = np.linalg.qr(a)
+            gains = np.linalg.lstsq(r, q.conj().T @ rows, rcond=None)[0]  # (count, frames), from the QR
             residual = rows - a @ gains
             return float(np.vdot(residual, residual).real), residual, q, gains, d_theta, d_path
 
