@@ -24,7 +24,6 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
@@ -75,10 +74,7 @@ def trajectory_errors(fused, true_xy, true_h):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="\n\n".join(__doc__.split("\n\n")[1:]))
-    office_surveys.add_arguments(parser, "out/odometry_systematic")
+    parser = office_surveys.parser_for(__doc__, "out/odometry_systematic")
     args = parser.parse_args(argv)
     scene_path = office_surveys.scene_path(parser, args)
     odometry = scene_mod.load_scene(scene_path).odometry

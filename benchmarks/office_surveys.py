@@ -3,6 +3,7 @@
 --seeds options, the scene simulated once per seed (thrumapper-sim --seed), reused after, and
 its map as thrumapper-map makes it, which they map again from the same JADE results with one of
 the fusion's constants changed."""
+import argparse
 import contextlib
 import dataclasses
 import io
@@ -17,6 +18,16 @@ SCENES_DIR = os.path.join(HERE, "..", "examples", "scenes")
 # the office scenes' survey does not state its system delay, and the TX null hides the
 # direct path it would be measured on (docs/mapping.md)
 SYSTEM_DELAY_S = {"office_floor": 31e-9, "office_floor_drift": 31e-9}
+
+
+def parser_for(doc, default_out):
+    """An argument parser for a benchmark script whose docstring is `doc` (its first
+    paragraph the description, the rest the epilog), with add_arguments' options."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="\n\n".join(doc.split("\n\n")[1:]))
+    add_arguments(parser, default_out)
+    return parser
 
 
 def add_arguments(parser, default_out):
