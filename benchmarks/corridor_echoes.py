@@ -44,6 +44,7 @@ from gnuradio.thrumapper import scene as scene_mod  # noqa: E402
 
 import direct_leak  # noqa: E402
 import office_surveys  # noqa: E402
+from odometry_systematic import true_trajectory  # noqa: E402
 
 #: a path counts as a wall's echo within this angle (deg) and this delay (s) of it
 ANGLE_DEG = 25.0
@@ -70,15 +71,6 @@ def corridor_faces(truth_path):
             normal = -normal
         faces[name] = (piece[0], normal)
     return faces
-
-
-def true_poses(truth_path):
-    with open(truth_path, encoding="utf-8") as handle:
-        features = json.load(handle)["features"]
-    track = [f for f in features if f["properties"].get("kind") == "trajectory"][0]
-    xy = np.array(track["geometry"]["coordinates"], float)
-    headings = track["properties"].get("headings_rad")
-    return np.column_stack((xy, np.zeros(len(xy)) if headings is None else np.array(headings, float)))
 
 
 def wall_figures(results, poses, face, tx_c, rx_c):
@@ -117,7 +109,7 @@ def table_row(scene_path, args, seed):
     scene = scene_mod.load_scene(scene_path, seed=None if seed == "own" else int(seed))
     refiner = info["fusion"].refiner
     results = info["jade_results"]
-    poses = true_poses(truth_path)
+    poses = np.column_stack(true_trajectory(truth_path))
     if len(poses) != len(results):
         raise RuntimeError(f"{truth_path}: {len(poses)} true poses for {len(results)} pose groups")
     power = [(p["delay_s"] < SPRAY_DELAY_S, p["power"]) for r in results for p in r[1]]
