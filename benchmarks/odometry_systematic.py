@@ -16,7 +16,14 @@ truth, degrees) and its cross-track error at the track's end. The gap between th
 columns is what the drift and scale estimates cost (docs/mapping.md, "The drift
 and the scale, given").
 
+With --true-odometry, a third map: the true poses handed in as the odometry (no systematic
+error, no per-step noise) and the adjustment run as thrumapper-map runs it. Whatever drift it
+estimates there, and whatever the track's error, comes from the echoes alone: the per-pose
+fits' runs of bias along the walls (docs/mapping.md, "Four more tries at the class rule and
+the trajectory").
+
 Usage: benchmarks/odometry_systematic.py [--out DIR] [--scene office_floor] [--seeds own 1 2 ...]
+                                         [--true-odometry]
        (PYTHONPATH=build/test_modules, or the module installed; a few minutes a seed)
 """
 import os
@@ -73,29 +80,45 @@ def trajectory_errors(fused, true_xy, true_h):
     return rms, quarters, cross
 
 
+def drift_of(fused):
+    """The heading drift the map's adjustment estimated (deg/m, 0 where held at none), as text."""
+    drift = fused.stats.get("odometry_drift_deg_per_m")
+    return "–" if drift is None else f"{drift:.3f}"
+
+
 def main(argv=None):
     parser = office_surveys.parser_for(__doc__, "out/odometry_systematic")
+    parser.add_argument("--true-odometry", action="store_true",
+                        help="also map each seed with the true poses as its odometry (the adjustment on)")
     args = parser.parse_args(argv)
     scene_path = office_surveys.scene_path(parser, args)
     odometry = scene_mod.load_scene(scene_path).odometry
     print(f"{args.scene}: odometry scale error {odometry['scale_error']:g}, heading drift "
           f"{odometry['heading_drift_deg_per_m']:g} deg/m\n")
-    print("| seed | drift estimated, deg/m | as mapped: RMS m | heading error at 1/4, 1/2, 3/4, end, deg | "
-          "cross at end m | systematic known: RMS m | heading error, deg | cross at end m |")
-    print("|---|---|---|---|---|---|---|---|")
+    header = ("| seed | drift estimated, deg/m | as mapped: RMS m | heading error at 1/4, 1/2, 3/4, end, deg | "
+              "cross at end m | systematic known: RMS m | heading error, deg | cross at end m |")
+    rule = "|---|---|---|---|---|---|---|---|"
+    if args.true_odometry:
+        header += " true odometry: drift estimated, deg/m | RMS m | heading error, deg | cross at end m |"
+        rule += "---|---|---|---|"
+    print(header)
+    print(rule)
     for seed in args.seeds:
         fused, info, truth = office_surveys.mapped(scene_path, args.scene, seed, args.out)
         poses = corrected_odometry(np.array([r[0] for r in info["jade_results"]], float), odometry["scale_error"],
                                    odometry["heading_drift_deg_per_m"])
         fused_known = office_surveys.remapped(info, poses, SYSTEMATIC_SIGNIFICANCE=math.inf)
         true_xy, true_h = true_trajectory(truth)
+        maps = [fused, fused_known]
+        if args.true_odometry:
+            maps.append(office_surveys.remapped(info, np.column_stack((true_xy, true_h))))
         rows = []
-        for f in (fused, fused_known):
+        for f in maps:
             rms, quarters, cross = trajectory_errors(f, true_xy, true_h)
             rows.append(f"{rms:.3f} | " + " / ".join(f"{q:+.2f}" for q in quarters) + f" | {cross:+.3f}")
-        drift = fused.stats.get("odometry_drift_deg_per_m")
-        drift = "–" if drift is None else f"{drift:.3f}"
-        print(f"| {seed} | {drift} | {rows[0]} | {rows[1]} |", flush=True)
+        if args.true_odometry:
+            rows[2] = f"{drift_of(maps[2])} | {rows[2]}"
+        print(f"| {seed} | {drift_of(fused)} | " + " | ".join(rows) + " |", flush=True)
     return 0
 
 
