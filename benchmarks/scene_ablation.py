@@ -3,8 +3,10 @@
 """The whole chain on an example scene with one of its elements taken away.
 
 Each variant is the scene less one thing: its clutter, its doors, its partitions, everything
-but the corridor, or one kind of the simulator's physics (second-order paths, edge scatter,
-the diffuse scatterers along every face). Each is simulated on the given seeds, mapped as
+but the corridor, one kind of the simulator's physics (second-order paths, edge scatter,
+the diffuse scatterers along every face), or the TX chains' errors (no_tx_errors: the
+per-element gain, phase and delay errors, which leave the direct path's leak in the null; what
+a TX calibration would take away). Each is simulated on the given seeds, mapped as
 thrumapper-map maps it, and scored with thrumapper-eval against its own truth. The table gives
 the medians over the seeds: line of sight and hidden detection error, the trajectory error,
 the turn of the whole map about its first pose (benchmarks/map_rotation.py) and the error of
@@ -79,6 +81,12 @@ def _no_partitions(data):
         data["doors"] = [d for d in data["doors"] if d["wall"] in names]
 
 
+def _no_tx_errors(data):
+    tx = (data.get("impairments") or {}).get("tx")
+    if tx:
+        data["impairments"]["tx"] = {k: (0.0 if isinstance(v, (int, float)) else v) for k, v in tx.items()}
+
+
 VARIANTS = {
     "full": lambda data: None,
     "no_clutter": _without("clutter"),
@@ -88,6 +96,7 @@ VARIANTS = {
     "no_second_order": _physics_off("second_order"),
     "no_edges": _physics_off("edges"),
     "no_diffuse": _physics_off("diffuse"),
+    "no_tx_errors": _no_tx_errors,
 }
 
 
