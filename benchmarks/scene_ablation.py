@@ -6,12 +6,16 @@ Each variant is the scene less one thing: its clutter, its doors, its partitions
 but the corridor, one kind of the simulator's physics (second-order paths, edge scatter,
 the diffuse scatterers along every face), or the TX chains' errors (no_tx_errors: the
 per-element gain, phase and delay errors, which leave the direct path's leak in the null; what
-a TX calibration would take away). Each is simulated on the given seeds, mapped as
+a TX calibration would take away). One variant adds instead: tx_calibrated, the radio's TX
+calibration before the survey (impairments.tx_calibration_frames: 4, tx_calibration.py), which
+measures those errors and sends the survey with corrected weights. Each is simulated on the given seeds, mapped as
 thrumapper-map maps it, and scored with thrumapper-eval against its own truth. The table gives
 the medians over the seeds: line of sight and hidden detection error, the trajectory error,
 the turn of the whole map about its first pose (benchmarks/map_rotation.py) and the error of
 the odometry drift the adjustment estimates (against the drift the odometry's headings show:
-its last heading less the truth's, over the path).
+its last heading less the truth's, over the path). LoS* and hid* are the classes' RMS without
+their detections on a true wall of the other class: where the walls are put, apart from the
+class decisions, which flip between surveys whose data differ by very little.
 
 With --poses truth the fusion is given the true poses as its odometry (its pose correction
 still runs, and may move them); with --poses truth-held it keeps them (no pose correction).
@@ -87,6 +91,14 @@ def _no_tx_errors(data):
         data["impairments"]["tx"] = {k: (0.0 if isinstance(v, (int, float)) else v) for k, v in tx.items()}
 
 
+def _tx_calibrated(data):
+    # The radio's TX calibration before the survey (tx_calibration.py): 4 frames per element
+    # at each of the first 4 poses; the survey frames go out with the corrected weights.
+    if not any((data.get("impairments") or {}).get("tx", {}).values()):
+        return  # nothing to calibrate: refused as taking nothing away
+    data["impairments"]["tx_calibration_frames"] = 4
+
+
 VARIANTS = {
     "full": lambda data: None,
     "no_clutter": _without("clutter"),
@@ -97,6 +109,7 @@ VARIANTS = {
     "no_edges": _physics_off("edges"),
     "no_diffuse": _physics_off("diffuse"),
     "no_tx_errors": _no_tx_errors,
+    "tx_calibrated": _tx_calibrated,
 }
 
 
@@ -172,9 +185,21 @@ def score(job):
         squared[cls] = {"total": total, "sources": [
             {"why": e["why"], "wall": e["wall"], "count": e["count"], "squared_m2": e["share"] * total}
             for e in d.get("error_sources", [])]}
+    def same_class(cls):
+        # the class's RMS without its detections on a true wall of the other class: the
+        # walls' placement, apart from the class decisions that flip (a few detections
+        # that move the RMS by decimetres between surveys whose data differ by -48 dB)
+        d = classes[cls]["detections"]
+        if d["rms_m"] is None:
+            return None
+        flipped = sum(e["share"] for e in d.get("error_sources", []) if e["why"] == "other_class")
+        return d["rms_m"] * math.sqrt(max(0.0, 1.0 - flipped))
+
     return {"variant": variant, "seed": seed, "poses": poses,
             "los_m": classes["line_of_sight"]["detections"]["rms_m"],
             "hidden_m": classes["hidden"]["detections"]["rms_m"],
+            "los_same_class_m": same_class("line_of_sight"),
+            "hidden_same_class_m": same_class("hidden"),
             "los_coverage": classes["line_of_sight"]["coverage"],
             "hidden_coverage": classes["hidden"]["coverage"],
             "trajectory_m": (scores["trajectory"] or {}).get("rms_m"),
@@ -252,13 +277,15 @@ def main(argv=None):
 
     print(f"{args.scene}, seeds {' '.join(args.seeds)}, poses: {args.poses}; medians over the seeds")
     print(f"{'variant':16s} {'LoS m':>6s} {'hidden':>6s} {'LoS cov':>7s} {'hid cov':>7s} {'traj m':>6s} {'|turn|':>6s} "
-          f"{'|drift err|':>11s}")
+          f"{'|drift err|':>11s} {'LoS*':>6s} {'hid*':>6s}")
     for v in args.variants:
         mine = [r for r in rows if r["variant"] == v]
         print(f"{v:16s} {fmt(_median(mine, 'los_m'))} {fmt(_median(mine, 'hidden_m'))} "
               f"{percent(_median(mine, 'los_coverage')):>7s} {percent(_median(mine, 'hidden_coverage')):>7s} "
               f"{fmt(_median(mine, 'trajectory_m'))} {fmt(_median(mine, 'turn_deg', True), 2)}° "
-              f"{fmt(_median(mine, 'drift_error_deg_per_m', True))}°/m")
+              f"{fmt(_median(mine, 'drift_error_deg_per_m', True))}°/m "
+              f"{fmt(_median(mine, 'los_same_class_m'))} {fmt(_median(mine, 'hidden_same_class_m'))}")
+    print("LoS*, hid*: the RMS without the detections on a true wall of the other class (class flips)")
     for v in args.variants if args.sources else ():
         mine = [r for r in rows if r["variant"] == v]
         for cls in evaluation.CLASSES:

@@ -12,7 +12,7 @@ try:
     from .thrumapper_python import *  # noqa: F401,F403
 except ModuleNotFoundError:
     pass
-from . import scene, building_sim, evaluation
+from . import scene, building_sim, evaluation, rx_calibration, tx_calibration
 from .survey import Survey, SurveyFormatError, read_survey, write_survey, group_frames_by_pose
 from .survey_blocks import survey_source, survey_sink
 from .building_channel import building_channel

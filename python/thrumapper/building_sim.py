@@ -782,7 +782,8 @@ class SimResult:
     """A simulated survey: what write_survey needs, and the truth behind it."""
 
     csi: np.ndarray  # (F, M, N) complex64
-    frame_types: list  # F strings: "rx_reference" frames first, then "survey"
+    frame_types: list  # F strings: "rx_reference" frames first, then "survey" (the TX calibration's first)
+    frame_tx_weights: np.ndarray  # (F, K) complex128: the weights each frame records
     poses_odometry: np.ndarray  # (F, 3) what the robot reports; NaN rows for reference frames
     poses_true: np.ndarray  # (F, 3) where it really was; NaN rows for reference frames
     pose_index: np.ndarray  # (F,) index into scene.poses, -1 for reference frames
@@ -797,6 +798,8 @@ class SimResult:
     rx_chain_gains: np.ndarray  # (M, N) β_m(f_n)
     tx_chain_gains: np.ndarray  # (K, N) α_k(f_n)
     noiseless_csi: np.ndarray  # (P, M, N) complex128 per pose, with impairments, before noise
+    tx_calibration: object  # tx_calibration.TxCalibration the radio applied, or None
+    tx_chain_residual: np.ndarray  # (K, N) α_k(f_n)·c_k: the TX chains the survey frames went through
     datetimes: list  # F ISO 8601 strings
     wall_model: dict  # {"relative_permittivity", "thickness_m"} when every wall shares one slab
     elapsed_s: float
@@ -884,7 +887,8 @@ def _datetimes(scene, count):
 def simulate_survey(scene, progress=True):
     """Simulate the scene's survey: every pose, frames_per_pose frames each, with noise,
     chain impairments, system delay and odometry error; RX reference frames first when the
-    scene's RX chains are impaired. Returns a SimResult."""
+    scene's RX chains are impaired, then the TX calibration's single-element frames when the
+    scene asks for one (impairments.tx_calibration_frames). Returns a SimResult."""
     started = time.perf_counter()
     radar = scene.radar
     frequencies = radar.frequencies_hz
@@ -894,10 +898,14 @@ def simulate_survey(scene, progress=True):
     beta = chain_gains(impairments["rx"], frequencies)  # (M, N)
     alpha = chain_gains(impairments["tx"], frequencies)  # (K, N)
     system_phase = np.exp(-2j * np.pi * frequencies * impairments["system_delay_s"])
-    weighted_tx = weights[:, None] * alpha  # (K, N)
+    num_tx, num_rx, num_sc = radar.num_tx, radar.num_rx, radar.num_subcarriers
+    cal_frames = impairments["tx_calibration_frames"]
+    cal_poses = min(impairments["tx_calibration_poses"], scene.num_poses) if cal_frames else 0
 
     num_poses = scene.num_poses
-    noiseless = np.empty((num_poses, radar.num_rx, radar.num_subcarriers), dtype=complex)
+    # Per pose and TX element (unit weight, chains applied): the survey frames are their
+    # weighted sum, and the TX calibration's frames are single elements of the first poses.
+    per_element = np.empty((num_poses, num_tx, num_rx, num_sc), dtype=complex)
     iterator = range(num_poses)
     if progress:
         from tqdm import tqdm
@@ -906,39 +914,74 @@ def simulate_survey(scene, progress=True):
     for p in iterator:
         tx, rx = _pose_elements(radar, scene.poses[p])
         mimo = _mimo_channel(scene, geom, tx, rx, frequencies, scene.poses[p, :2])
-        noiseless[p] = beta * np.einsum("kn,kmn->mn", weighted_tx, mimo) * system_phase
+        per_element[p] = beta[None] * alpha[:, None, :] * mimo * system_phase
+    noiseless = np.einsum("k,pkmn->pmn", weights, per_element)
 
     if "snr_db" in scene.noise:
-        # SNR per sample relative to the survey's mean channel power.
+        # SNR per sample relative to the survey's mean channel power (before any TX calibration,
+        # so that a scene with and without one draws the same noise).
         noise_power = float(np.mean(np.abs(noiseless) ** 2)) / 10.0 ** (scene.noise["snr_db"] / 10.0)
     else:
         noise_power = float(scene.noise["power"])
 
-    num_ref = impairments["rx_reference_frames"]
-    fpp = scene.frames_per_pose
-    num_frames = num_ref + num_poses * fpp
-    clean = np.empty((num_frames, radar.num_rx, radar.num_subcarriers), dtype=complex)
-    reference = impairments["rx_reference_amplitude"] * system_phase  # s(f): one split, equal cables
-    clean[:num_ref] = beta * reference
-    clean[num_ref:] = np.repeat(noiseless, fpp, axis=0)
-    rng = _scene.rng_for(scene.seed, _scene.RNG_NOISE)
-    noise = (rng.standard_normal(clean.shape) + 1j * rng.standard_normal(clean.shape)) * math.sqrt(noise_power / 2)
-    csi = clean + noise
     offsets = radar.subcarrier_offsets_hz
     spacing = float(np.median(np.diff(offsets))) if offsets.size > 1 else 1.0
     # DC offset lands on the subcarriers next to DC.
     dc_bins = np.abs(offsets) <= 0.5 * spacing * (1.0 + 1e-9)
-    csi[:, :, dc_bins] += impairments["dc_offset"][None, :, None]
+    num_ref = impairments["rx_reference_frames"]
+    reference = impairments["rx_reference_amplitude"] * system_phase  # s(f): one split, equal cables
+    fpp = scene.frames_per_pose
+    rng = _scene.rng_for(scene.seed, _scene.RNG_NOISE)
+    shape = (num_ref + num_poses * fpp, num_rx, num_sc)
+    noise = (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)) * math.sqrt(noise_power / 2)
+    noise[:, :, dc_bins] += impairments["dc_offset"][None, :, None]
+    rx_reference = beta * reference + noise[:num_ref]
 
-    pose_index = np.concatenate((np.full(num_ref, -1), np.repeat(np.arange(num_poses), fpp)))
+    # The radio's TX calibration, before the survey: each element alone (unit weight) at the
+    # first poses, through the RX chains as the reference frames calibrate them; the
+    # correction it measures multiplies the weights of every survey frame after it, so the
+    # survey records the nominal weights (FORMATS.md: α_k = 1 once the radio is calibrated).
+    calibration = None
+    chain_residual = alpha
+    cal_csi = np.empty((0, num_rx, num_sc), dtype=complex)
+    cal_pose_index = np.empty(0, dtype=int)
+    cal_elements = np.empty(0, dtype=int)
+    if cal_frames:
+        from . import rx_calibration as _rx_cal
+        from . import tx_calibration as _tx_cal
+
+        cal_pose_index = np.repeat(np.arange(cal_poses), num_tx * cal_frames)
+        cal_elements = np.tile(np.repeat(np.arange(num_tx), cal_frames), cal_poses)
+        # Its own noise stream: the survey's frames draw the same noise with or without it.
+        cal_rng = _scene.rng_for(scene.seed, _scene.RNG_TX_CALIBRATION)
+        cal_csi = per_element[cal_pose_index, cal_elements]
+        cal_csi = cal_csi + (cal_rng.standard_normal(cal_csi.shape) + 1j * cal_rng.standard_normal(cal_csi.shape)) * \
+            math.sqrt(noise_power / 2)
+        cal_csi[:, :, dc_bins] += impairments["dc_offset"][None, :, None]
+        seen = cal_csi
+        if num_ref:
+            seen = _rx_cal.calibrate_rx(rx_reference, offsets).apply(cal_csi)
+        calibration = _tx_cal.calibrate_tx(seen, cal_elements, np.ones(cal_elements.size), radar.tx_elements_m,
+                                           radar.rx_elements_m, radar.carrier_hz, offsets, poses=cal_pose_index)
+        chain_residual = alpha * calibration.correction[:, None]
+        noiseless = np.einsum("k,pkmn->pmn", weights * calibration.correction, per_element)
+
+    num_cal = cal_csi.shape[0]
+    num_frames = num_ref + num_cal + num_poses * fpp
+    csi = np.concatenate((rx_reference, cal_csi, np.repeat(noiseless, fpp, axis=0) + noise[num_ref:]))
+
+    pose_index = np.concatenate((np.full(num_ref, -1), cal_pose_index, np.repeat(np.arange(num_poses), fpp)))
     poses_true = np.full((num_frames, 3), np.nan)
     poses_odometry = np.full((num_frames, 3), np.nan)
     odometry = odometry_poses(scene, scene.poses)
     poses_true[num_ref:] = scene.poses[pose_index[num_ref:]]
     poses_odometry[num_ref:] = odometry[pose_index[num_ref:]]
+    frame_weights = np.tile(weights, (num_frames, 1))
+    frame_weights[num_ref:num_ref + num_cal] = np.eye(num_tx, dtype=complex)[cal_elements]
     return SimResult(
         csi=csi.astype(np.complex64),
-        frame_types=["rx_reference"] * num_ref + ["survey"] * (num_poses * fpp),
+        frame_types=["rx_reference"] * num_ref + ["survey"] * (num_cal + num_poses * fpp),
+        frame_tx_weights=frame_weights,
         poses_odometry=poses_odometry,
         poses_true=poses_true,
         pose_index=pose_index,
@@ -953,6 +996,8 @@ def simulate_survey(scene, progress=True):
         rx_chain_gains=beta,
         tx_chain_gains=alpha,
         noiseless_csi=noiseless,
+        tx_calibration=calibration,
+        tx_chain_residual=chain_residual,
         datetimes=_datetimes(scene, num_frames),
         wall_model=scene_wall_model(scene),
         elapsed_s=time.perf_counter() - started,

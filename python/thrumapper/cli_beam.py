@@ -26,6 +26,15 @@ examples:
   thrumapper-beam --main-lobe-deg 300 --png beam.png
   thrumapper-beam --main-lobe-deg 290 --null-deg 200 --null-deg 150 --json
   thrumapper-beam --main-lobe-deg 300 --eq9          # the paper's plane-wave eq. 9, for comparison
+  thrumapper-beam --tx-calibration out/tx_calibration.sigmf-meta --save out/tx_calibration.json
+
+TX calibration (--tx-calibration SURVEY): the survey's frames sounded with one TX element alone
+  (calibration.grc's step 3 records them; thrumapper-sim writes them when a scene sets
+  impairments.tx_calibration_frames) measure each TX chain's gain, phase and delay on the
+  direct path, the walls' echoes fitted and removed first. It prints them, the coupling the
+  chains leave in the null uncorrected, and the weights to send (each design weight times
+  1/alpha_k). --save writes them as JSON for usrp_survey.grc's "TX calibration" parameter.
+  The survey's own geometry and RX reference frames are used; its array must match --elements.
 """
 
 
@@ -51,7 +60,28 @@ def build_parser():
     p.add_argument("--bandwidth-hz", type=float, default=120e6)
     p.add_argument("--png", metavar="BEAM.png", help="write the beam pattern at the band's edges and centre")
     p.add_argument("--json", action="store_true", help="print a JSON object instead of text")
+    p.add_argument("--tx-calibration", metavar="SURVEY",
+                   help="measure the TX chains from this survey's single-element frames and print the "
+                        "corrected weights (see below)")
+    p.add_argument("--save", metavar="FILE.json", help="with --tx-calibration: write the calibration as JSON")
     return p
+
+
+def _tx_calibration(path, num_tx):
+    """(TxCalibration, survey) from the single-element frames of a survey; ValueError naming
+    what is wrong."""
+    from . import rx_calibration, survey, tx_calibration
+
+    try:
+        sv = survey.read_survey(path)
+    except (survey.SurveyFormatError, OSError) as err:
+        raise ValueError(f"--tx-calibration: {err}") from None
+    if sv.num_tx != num_tx:
+        raise ValueError(f"--tx-calibration: {path} has {sv.num_tx} TX elements, the design {num_tx} (--elements)")
+    cal = tx_calibration.calibrate_survey_tx(sv, rx_calibration.calibrate_survey(sv))
+    if cal is None:
+        raise ValueError(f"--tx-calibration: {path} has no frame sounded with one TX element alone")
+    return cal
 
 
 def main(argv=None):
@@ -66,6 +96,9 @@ def main(argv=None):
             weights = ns.eq9_weights(main_rad, ns.receiver_bearing_rad)
         else:
             weights = ns.design(main_rad, [math.radians(d) for d in args.null_deg], not args.no_receiver_null)
+        if args.save and not args.tx_calibration:
+            raise ValueError("--save needs --tx-calibration")
+        cal = _tx_calibration(args.tx_calibration, args.elements) if args.tx_calibration else None
     except ValueError as e:
         print(f"thrumapper-beam: {e}", file=sys.stderr)
         return 2
@@ -77,6 +110,22 @@ def main(argv=None):
         "expected_coupling_db": {f"{e:g}": ns.expected_coupling_db(weights, math.radians(e)) for e in (1, 2, 5)},
         "main_lobe_gain_db": float(ns.beam_pattern_db(weights, [main_rad], [args.carrier_hz])[0, 0]),
     }
+    if cal is not None:
+        from . import tx_calibration
+
+        chains = 1.0 / cal.correction  # the measured α_k at the carrier
+        sent = cal.corrected_weights(weights)
+        report["tx_calibration"] = tx_calibration.calibration_json(cal)
+        report["coupling_uncorrected_db"] = ns.coupling_db([complex(w) for w in np.asarray(weights) * chains])
+        report["corrected_weights"] = [[w.real, w.imag] for w in sent]
+        if args.save:
+            try:
+                with open(args.save, "w", encoding="utf-8") as handle:
+                    json.dump(report["tx_calibration"], handle, indent=1)
+                    handle.write("\n")
+            except OSError as err:
+                print(f"thrumapper-beam: --save {args.save}: {err.strerror}", file=sys.stderr)
+                return 2
     if args.json:
         print(json.dumps(report))
     else:
@@ -86,6 +135,15 @@ def main(argv=None):
               "phase error per chain: " + ", ".join(f"{k} deg {v:.1f} dB" for k, v in report["expected_coupling_db"].items()))
         for k, w in enumerate(weights):
             print(f"  w[{k}] = {abs(w):.4f} at {math.degrees(math.atan2(w.imag, w.real)):8.2f} deg")
+        if cal is not None:
+            print(cal.summary())
+            print(f"coupling with these chains uncorrected {report['coupling_uncorrected_db']:.1f} dB; send instead "
+                  "(design weight / chain):")
+            for k, (w, g, ph) in enumerate(zip(sent, cal.gain_db, cal.phase_rad)):
+                print(f"  w[{k}] = {abs(w):.4f} at {math.degrees(math.atan2(w.imag, w.real)):8.2f} deg   "
+                      f"(chain {g:+.2f} dB, {math.degrees(ph):+.2f} deg)")
+            if args.save:
+                print(f"saved {args.save}")
     if args.png:
         import matplotlib
         matplotlib.use("Agg")

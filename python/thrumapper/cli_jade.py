@@ -7,13 +7,15 @@ import argparse
 import json
 import sys
 
+from . import rx_calibration
 from .jade_pipeline import JadeSettings, plot_surface, run_survey
 from .survey import SurveyFormatError, read_survey
 
 EPILOG = """\
 output:
-  one JSON object per line for each group of frames that share a pose (rx_reference frames
-  are left out), strongest path first:
+  one JSON object per line for each group of frames that share a pose (rx_reference frames,
+  which calibrate the RX chains first, and a TX calibration's single-element frames are left
+  out), strongest path first:
     {"frames": [0, 1, 2, 3], "pose": [x, y, heading],
      "paths": [{"aoa_deg": 243.4, "delay_s": 5.22e-09, "power": 0.0013}, ...]}
   aoa_deg: angle of arrival at the RX array centre, degrees in [0, 360), counter-clockwise
@@ -29,7 +31,9 @@ direct path:
 system delay:
   taken from --system-delay-s, else from the survey's thrumapper:system_delay_s, else
   measured on the direct TX->RX path, whose geometry is known (delays are then defined
-  modulo 1/subcarrier spacing, about 1.07 us at 120 MHz / 128).
+  modulo 1/subcarrier spacing, about 1.07 us at 120 MHz / 128): on the frames sounded with
+  one TX element alone when the survey has them (a TX calibration), else on the survey's
+  frames, which a TX null steered at the receiver leaves too weak for it.
 
 examples:
   thrumapper-sim examples/scenes/paper_4_2_wall_0p7m.yaml --out out/
@@ -77,7 +81,9 @@ def main(argv=None):
     args = build_parser().parse_args(argv)
     try:
         survey = read_survey(args.survey)
-    except (SurveyFormatError, OSError) as e:
+        # the RX chains calibrated on the survey's reference frames, as thrumapper-map does
+        survey = rx_calibration.calibrated_survey(survey, rx_calibration.calibrate_survey(survey))
+    except (SurveyFormatError, OSError, ValueError) as e:
         print(f"thrumapper-jade: {e}", file=sys.stderr)
         return 2
     settings = JadeSettings(num_angles=args.angles, num_delays=args.delays,

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import thrumapper_python as _core
+from . import tx_calibration
 from .survey import group_frames_by_pose
 
 @dataclass
@@ -82,9 +83,17 @@ def estimate_system_delay(survey, groups, max_groups=5, oversample=64):
     modulo the subcarrier spacing's ambiguity) and refined by a parabola through the peak.
     The median over the first pose groups is returned, in [0, 1/Δf).
 
+    A survey with a TX calibration (frames sounded with one element alone, whose direct
+    path is not nulled) is measured on those frames instead, one group per element.
+
     Raises ValueError when the direct path holds less than DIRECT_PATH_MIN_ENERGY_SHARE of
     the frames' energy (a nulled TX, or no frames).
     """
+    if survey.num_tx > 1:
+        single, elements = tx_calibration.single_element_frames(survey)
+        if single.size:
+            groups = [(single[elements == k], None) for k in np.unique(elements)]
+            max_groups = max(max_groups, len(groups))
     if not groups:
         raise ValueError("system delay: the survey has no survey frames")
     offsets = np.asarray(survey.subcarrier_offsets_hz, float)

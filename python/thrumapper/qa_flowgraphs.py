@@ -76,7 +76,10 @@ class qa_flowgraphs(gr_unittest.TestCase):
         self.assertIn("self.usrp_rx.set_start_time(uhd.time_spec(start_time_s))", code)
         self.assertIn("self.usrp_tx.set_time_next_pps(", code)  # the TX array joins the RX time base
         self.assertIn("zeromq.sub_msg_source(pose_address", code)
-        self.assertIn("thrumapper.ofdm_sounder(sounding, tx_weights, start_time_s)", code)
+        self.assertIn("thrumapper.ofdm_sounder(sounding, sent_weights, start_time_s)", code)
+        # the sounder sends the weights the TX calibration corrected; the survey records the design's
+        self.assertIn("load_correction(tx_calibration, 8)", code)
+        self.assertNotIn("self.msg_connect((self.weights, 'weights'), (self.sounder, 'weights'))", code)
         self.assertIn("thrumapper.survey_sink(", code)
         # 8 channels each way, over 4 motherboards
         self.assertEqual(code.count("channels=list(range(0,8))"), 2)

@@ -636,7 +636,8 @@ def _chain_values(section, where, count, key, std_key, rng, unit_scale, uniform_
 
 _CHAIN_KEYS = {"gain_db", "gain_db_std", "phase_deg", "phase_deg_std", "delay_ps", "delay_ps_std"}
 _IMPAIRMENT_KEYS = {"system_delay_s", "system_delay_known", "rx", "tx", "dc_offset", "dc_offset_db",
-                    "rx_reference_frames", "rx_reference_amplitude"}
+                    "rx_reference_frames", "rx_reference_amplitude", "tx_calibration_frames",
+                    "tx_calibration_poses"}
 
 
 def _read_chains(section, where, count, rng):
@@ -679,6 +680,9 @@ def _read_impairments(section, radar, rng):
         "rx_reference_frames": _get(section, "rx_reference_frames", 4 if rx_impaired else 0, _number, where, lo=0,
                                     integer=True),
         "rx_reference_amplitude": _get(section, "rx_reference_amplitude", 0.01, _number, where, lo=0.0, lo_open=True),
+        # The radio's TX calibration (tx_calibration.py): frames per element, at each of the first poses.
+        "tx_calibration_frames": _get(section, "tx_calibration_frames", 0, _number, where, lo=0, integer=True),
+        "tx_calibration_poses": _get(section, "tx_calibration_poses", 4, _number, where, lo=1, integer=True),
     }
 
 
@@ -754,7 +758,7 @@ _TOP_KEYS = {"name", "description", "seed", "radar", "materials", "walls", "door
 
 # Independent random streams: one per purpose, so that changing one part of a scene leaves
 # the random draws of the others as they were.
-RNG_CLUTTER, RNG_IMPAIRMENTS, RNG_DIFFUSE, RNG_ODOMETRY, RNG_NOISE = 1, 2, 3, 4, 5
+RNG_CLUTTER, RNG_IMPAIRMENTS, RNG_DIFFUSE, RNG_ODOMETRY, RNG_NOISE, RNG_TX_CALIBRATION = 1, 2, 3, 4, 5, 6
 
 
 def rng_for(seed, purpose):

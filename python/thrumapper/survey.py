@@ -537,10 +537,19 @@ def group_frames_by_pose(survey, atol=1e-9):
     """Runs of consecutive survey frames at one pose: [(frame_indices, pose (3,)), ...].
 
     rx_reference frames are left out and do not break a run (a reference shot taken without
-    moving leaves the robot where it was). Poses are equal when every component is within
-    atol.
+    moving leaves the robot where it was), and so are, on a radar of more than one TX
+    element, the frames sounded with one element alone: the TX calibration
+    (tx_calibration.py), not the survey's beam. Poses are equal when every component is
+    within atol.
     """
     frames = survey.survey_frames()
+    if survey.num_tx > 1 and frames.size:
+        if __package__:
+            from .tx_calibration import single_element_frames
+        else:  # imported as a plain file
+            from tx_calibration import single_element_frames
+
+        frames = np.setdiff1d(frames, single_element_frames(survey)[0])
     if frames.size == 0:
         return []
     poses = survey.poses[frames]

@@ -28,6 +28,7 @@ if __package__:
         rx_time_to_datetime,
         write_meta,
     )
+    from .tx_calibration import single_element_frames
 else:  # imported as a plain file, before the package is built
     from survey import (
         FILE_DTYPE,
@@ -40,6 +41,7 @@ else:  # imported as a plain file, before the package is built
         rx_time_to_datetime,
         write_meta,
     )
+    from tx_calibration import single_element_frames
 from sigmf.sigmffile import get_sigmf_filenames
 
 # Tag and message keys, shared by the source and the sink.
@@ -108,7 +110,11 @@ def _select_frames(survey, frame_types):
     if unknown:
         raise ValueError(f"frame_types: unknown {unknown}; expected 'all' or types from {FRAME_TYPES}")
     types = np.asarray(survey.frame_types, dtype=object)
-    return np.flatnonzero(np.isin(types, list(wanted)))
+    frames = np.flatnonzero(np.isin(types, list(wanted)))
+    if frame_types == "survey" and survey.num_tx > 1:
+        # The TX calibration's single-element frames are not the survey's beam: "all" plays them.
+        frames = np.setdiff1d(frames, single_element_frames(survey)[0])
+    return frames
 
 
 class survey_source(gr.sync_block):
@@ -124,7 +130,8 @@ class survey_source(gr.sync_block):
     weights (the form projection_canceller and the sounder take).
     The flowgraph ends after the last frame unless repeat.
 
-    frame_types: "survey" (default), "rx_reference", "all", or a list of frame types.
+    frame_types: "survey" (default: the survey frames, without a TX calibration's frames sounded
+    with one element alone), "rx_reference", "all", or a list of frame types.
     num_rx, num_subcarriers: when given, the M and N the flowgraph expects (GRC must know
     the vector length before the file is opened); a survey of another shape is refused.
     """
