@@ -29,8 +29,8 @@ examples:
   thrumapper-beam --tx-calibration out/tx_calibration.sigmf-meta --save out/tx_calibration.json
 
 TX calibration (--tx-calibration SURVEY): the survey's frames sounded with one TX element alone
-  (calibration.grc's step 3 records them; thrumapper-sim writes them when a scene sets
-  impairments.tx_calibration_frames) measure each TX chain's gain, phase and delay on the
+  (calibration.grc records them on the radios, docs/hardware.md; thrumapper-sim writes them
+  with --tx-calibration-frames F or a scene's impairments.tx_calibration_frames) measure each TX chain's gain, phase and delay on the
   direct path, the walls' echoes fitted and removed first. It prints them, the coupling the
   chains leave in the null uncorrected, and the weights to send (each design weight times
   1/alpha_k). --save writes them as JSON for usrp_survey.grc's "TX calibration" parameter.
