@@ -89,11 +89,10 @@ def estimate_system_delay(survey, groups, max_groups=5, oversample=64):
     Raises ValueError when the direct path holds less than DIRECT_PATH_MIN_ENERGY_SHARE of
     the frames' energy (a nulled TX, or no frames).
     """
-    if survey.num_tx > 1:
-        single, elements = tx_calibration.single_element_frames(survey)
-        if single.size:
-            groups = [(single[elements == k], None) for k in np.unique(elements)]
-            max_groups = max(max_groups, len(groups))
+    single, elements = tx_calibration.single_element_frames(survey)
+    if single.size:
+        groups = [(single[elements == k], None) for k in np.unique(elements)]
+        max_groups = max(max_groups, len(groups))
     if not groups:
         raise ValueError("system delay: the survey has no survey frames")
     offsets = np.asarray(survey.subcarrier_offsets_hz, float)

@@ -542,14 +542,11 @@ def group_frames_by_pose(survey, atol=1e-9):
     (tx_calibration.py), not the survey's beam. Poses are equal when every component is
     within atol.
     """
-    frames = survey.survey_frames()
-    if survey.num_tx > 1 and frames.size:
-        if __package__:
-            from .tx_calibration import single_element_frames
-        else:  # imported as a plain file
-            from tx_calibration import single_element_frames
-
-        frames = np.setdiff1d(frames, single_element_frames(survey)[0])
+    if __package__:
+        from .tx_calibration import single_element_frames
+    else:  # imported as a plain file
+        from tx_calibration import single_element_frames
+    frames = np.setdiff1d(survey.survey_frames(), single_element_frames(survey)[0])
     if frames.size == 0:
         return []
     poses = survey.poses[frames]

@@ -111,7 +111,7 @@ def _select_frames(survey, frame_types):
         raise ValueError(f"frame_types: unknown {unknown}; expected 'all' or types from {FRAME_TYPES}")
     types = np.asarray(survey.frame_types, dtype=object)
     frames = np.flatnonzero(np.isin(types, list(wanted)))
-    if frame_types == "survey" and survey.num_tx > 1:
+    if frame_types == "survey":
         # The TX calibration's single-element frames are not the survey's beam: "all" plays them.
         frames = np.setdiff1d(frames, single_element_frames(survey)[0])
     return frames

@@ -8,8 +8,8 @@ A frame sounded with element k alone, weight v (FORMATS.md: a frame whose
 
     H[m, n] = v · α_k(f_n) · (d_km(f_n) + echoes) · e^{−j2π f_n τ_sys} + noise,
 
-with d_km = e^{−j2π f_n |t_k − r_m|/c} / |t_k − r_m| the direct path, whose geometry is
-known. Matching every frame with its element's direct path over the RX elements gives
+with d_km = λ_n/(4π|t_k − r_m|) · e^{−j2π f_n |t_k − r_m|/c} the direct path, whose geometry
+is known. Matching every frame with its element's direct path over the RX elements gives
 α_k(f_n)·e^{−j2π f_n τ_sys} per subcarrier, plus what the echoes leave in it; the ratio to
 element 0 cancels τ_sys and everything else common to the elements. As for the RX chains
 (rx_calibration), only the chains' *relative* gains, phases and delays can be measured, and
@@ -85,19 +85,29 @@ class TxCalibration:
                 f"delay {np.ptp(self.delay_s) * 1e12:.1f} ps p-p, model misfit {self.residual_db:.1f} dB")
 
 
+def _single_elements(weights):
+    """Per row of weights (F, K): the index of the one element it switches on, else -1."""
+    w = np.abs(np.asarray(weights, dtype=np.complex128))
+    if w.size == 0:
+        return np.full(w.shape[0], -1)
+    largest = w.max(axis=1)
+    on = w > OFF_WEIGHT_FRACTION * largest[:, None]
+    alone = np.all(np.isfinite(w), axis=1) & (largest > 0) & (np.count_nonzero(on, axis=1) == 1)
+    return np.where(alone, np.argmax(on, axis=1), -1)
+
+
 def single_element(weights):
     """The index of the one element a weight vector switches on, else -1."""
-    w = np.abs(np.asarray(weights, dtype=np.complex128).reshape(-1))
-    if w.size == 0 or not np.all(np.isfinite(w)) or w.max() == 0:
-        return -1
-    on = np.flatnonzero(w > OFF_WEIGHT_FRACTION * w.max())
-    return int(on[0]) if on.size == 1 else -1
+    return int(_single_elements(np.asarray(weights).reshape(1, -1))[0])
 
 
 def single_element_frames(survey):
-    """(frames, elements): the survey frames sounded with one TX element alone, ascending."""
+    """(frames, elements): the survey frames sounded with one TX element alone, ascending:
+    a TX calibration. Empty on a radar of one TX element, whose every frame is sounded so."""
     frames = survey.survey_frames()
-    elements = np.array([single_element(survey.frame_tx_weights[f]) for f in frames], dtype=int)
+    if survey.num_tx < 2:
+        return frames[:0], np.empty(0, dtype=int)
+    elements = _single_elements(survey.frame_tx_weights[frames])
     keep = elements >= 0
     return frames[keep], elements[keep]
 
@@ -177,10 +187,10 @@ class _EchoDictionary:
         z = np.einsum("amn,mn->an", self._steer.conj(), residual)  # (A, N)
         score = np.abs(z @ self._delay)
         a, d = np.unravel_index(int(np.argmax(score)), score.shape)
-        angle, delay = self.refine(residual, others, self.angles[a], self.delays[d], levels=2)
+        angle, delay = self.refine(residual, others, self.angles[a], self.delays[d])
         return self.newton(residual, others, angle, delay)
 
-    def refine(self, residual, others, angle, delay, angle_step=math.radians(1.0), delay_step=0.125e-9, levels=5):
+    def refine(self, residual, others, angle, delay, angle_step=math.radians(1.0), delay_step=0.125e-9, levels=2):
         """Zoom in around (angle, delay), scoring each candidate by what it adds to the fit
         of the other columns (orthogonal least squares: its part orthogonal to them): a
         path 4 mm long off leaves a tenth of its echo unexplained at 2.4 GHz, and a
@@ -197,7 +207,6 @@ class _EchoDictionary:
             angle, delay = angles[a], max(delays[d], self.min_delay_s)
             angle_step, delay_step = angle_step / 3.0, delay_step / 3.0
         return float(angle), float(delay)
-
 
     def newton(self, residual, others, angle, delay, iterations=4):
         """Gauss-Newton on (angle, delay) from a start within the path's main lobe, with the
