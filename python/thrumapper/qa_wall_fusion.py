@@ -1118,6 +1118,58 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertLess(float(np.abs(wall["coordinates"][:, 1] + 0.7).max()), 0.03)
         self.assertEqual(wall["class"], "line_of_sight")
 
+    def test_map_moved_onto_other_poses(self):
+        """WallFusion._warp_map, which moves the finished map onto the carrier phase's poses:
+        poses all moved by one rigid motion (turned 2° about (1, 0.5), shifted (0.3, -0.2))
+        move every point of the map by it, walls' normals turned with them and still facing
+        the robot's side; poses unchanged leave the map as it was; a track bent after
+        x = 5 m (the poses past it 0.1 m north) moves what lies beside its first half not
+        at all and what lies beside its second half 0.1 m north."""
+        from gnuradio.thrumapper.wall_fusion import FusedMap, MapCorner
+
+        def a_map(poses):
+            walls = [MapWall(np.array([0.0, -1.0]), np.array([4.0, -1.0]), np.array([0.0, 1.0]), "line_of_sight",
+                             0.9, 10, 10, 0.01),
+                     MapWall(np.array([6.0, 1.0]), np.array([9.0, 1.0]), np.array([0.0, -1.0]), "line_of_sight",
+                             0.9, 10, 10, 0.01)]
+            opening = MapOpening(np.array([4.2, -1.0]), np.array([5.0, -1.0]), np.array([0.0, 1.0]), 0.5, 3, 0.05)
+            return FusedMap(walls, [MapCorner(np.array([2.0, -3.0]), 0.5, "hidden", 4)], [(np.array([7.0, 2.5]), 3)],
+                            {"line_of_sight": np.array([[1.0, -1.0], [7.0, 1.0]]), "hidden": np.array([[2.0, -3.0]])},
+                            {"line_of_sight": np.array([[1.1, -1.02]])}, poses.copy(), poses.copy(),
+                            list(range(len(poses))), {}, [opening])
+
+        def points(m):
+            return np.vstack([np.vstack((w.start_m, w.end_m)) for w in m.walls] + [m.corners[0].position_m,
+                             m.scatterers[0][0], m.detections["line_of_sight"], m.detections["hidden"],
+                             m.echoes["line_of_sight"], m.openings[0].start_m, m.openings[0].end_m])
+
+        poses = np.column_stack((np.arange(0.0, 10.01, 0.2), np.zeros(51), np.zeros(51)))
+        fusion = WallFusion(RADAR, exact_settings())
+        before = points(a_map(poses))
+        same = a_map(poses)
+        fusion._warp_map(same, poses, poses.copy())
+        np.testing.assert_allclose(points(same), before, atol=1e-12)
+        turn = math.radians(2.0)
+        rot = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
+        pivot, shift = np.array([1.0, 0.5]), np.array([0.3, -0.2])
+
+        def rigid(p):
+            return (np.atleast_2d(p) - pivot) @ rot.T + pivot + shift
+
+        moved_poses = np.column_stack((rigid(poses[:, :2]), poses[:, 2] + turn))
+        moved = a_map(poses)
+        fusion._warp_map(moved, poses, moved_poses)
+        np.testing.assert_allclose(points(moved), rigid(before), atol=1e-9)
+        np.testing.assert_allclose(moved.trajectory, moved_poses, atol=1e-12)
+        for w, sign in zip(moved.walls, (1.0, -1.0)):
+            np.testing.assert_allclose(w.normal, sign * rot @ np.array([0.0, 1.0]), atol=1e-9)
+        bent_poses = poses.copy()
+        bent_poses[poses[:, 0] > 5.0, 1] += 0.1
+        bent = a_map(poses)
+        fusion._warp_map(bent, poses, bent_poses)
+        lift = np.where(before[:, 0] > 5.1, 0.1, 0.0)
+        np.testing.assert_allclose(points(bent), before + np.column_stack((np.zeros(len(before)), lift)), atol=1e-9)
+
     def test_map_pmt(self):
         fusion = WallFusion(RADAR, exact_settings(correct_poses=False))
         walls = [([-2.0, -1.0], [12.0, -1.0])]

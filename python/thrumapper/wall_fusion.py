@@ -761,6 +761,9 @@ class WallFusion:
     #: holds answers with a steady offset per step), so that what they measure is how the
     #: path's change changes along the wall: the heading's drift
     PHASE_STEP_MIN_STEPS = 8
+    #: ...from walls within this angle of the heading of the poses that see them only (None:
+    #: every wall)
+    PHASE_STEP_MAX_TILT_DEG = None
     #: the pose adjustment's model of the CSI fits' runs of bias along a line-of-sight wall
     #: (with the CSI): their size, how far along the wall they hold, the knots' spacing
     #: (_adjust_poses). Off (0: the fits taken as white noise): with 5 cm the office maps
@@ -908,6 +911,7 @@ class WallFusion:
         self._wall_material_names = {}  # wall index: material (_estimate_materials), set by build_map
         self._labelled_facing = set()  # walls labelled mostly against walls facing their way (_estimate_materials)
         self._tx_gains_db = {}  # _tx_gain_db's, by direction
+        self._phase_fit = None  # the carrier phase's adjustment (_phase_poses), set by build_map
         self.counts = {"messages": 0, "paths": 0, "skipped_nonfinite": 0, "skipped_early": 0, "skipped_far": 0,
                        "skipped_weak": 0}
 
@@ -2658,6 +2662,10 @@ class WallFusion:
             stats["adjustment_last_move_m"] = moved_m
             state, shifts, ghosts = refine(poses, shifts, ghosts)
             corrected = True
+        phase_poses = None
+        self._phase_fit = None
+        if corrected and self.PHASE_POSES_FOR_GEOMETRY and self._fits_on_csi:
+            phase_poses = self._timed("pose correction", self._phase_poses, det, odometry, poses, state, axial)
         det_cls, wall_cls = self._classify(state)
         end_walls = self._timed("end walls", self._end_walls, state, poses, wall_cls, axial) \
             if self._fits_on_csi else []
@@ -2679,6 +2687,8 @@ class WallFusion:
         result = self._timed("output", self._assemble, det, poses, odometry, state, det_cls, wall_cls, ghosts,
                              frame_indices, stats, end_walls, side_walls)
         result.stats["poses_corrected"] = corrected
+        if phase_poses is not None:
+            self._warp_map(result, poses, phase_poses)
         result.stats["unconfirmed_echoes"] = int(np.count_nonzero(self._unconfirmed))
         if self._odometry_fit:
             result.stats.update(self._odometry_fit)
@@ -2690,6 +2700,94 @@ class WallFusion:
         return result
 
     # -- pose correction -------------------------------------------------------------------
+    #: the map's geometry moved, last of all, onto poses adjusted once more with the walls'
+    #: carrier phase (_phase_poses, _warp_map), its decisions (walls, classes, doors,
+    #: partitions) kept from the poses the mapping rounds settled on. The phase steps measure
+    #: the heading's drift that the per-pose fits' runs of bias hide (office surveys: drift
+    #: 0.035 deg/m low, the maps turned 0.48 deg; "The walls' carrier phase", docs/mapping.md),
+    #: but the mapping's decisions taken on the poses they give flip on a few surveys ("The
+    #: map turned as a whole"); moved afterwards, they cannot. False: the rounds' poses.
+    PHASE_POSES_FOR_GEOMETRY = True
+    #: ...the phase steps' noise floor in that solve (PHASE_STEP_SIGMA_M's meaning), and only
+    #: walls within PHASE_POSES_MAX_TILT_DEG of the track give them: an oblique wall's line
+    #: fitted a degree off models its path's change wrong by a few millimetres a step, which
+    #: adds up along the track (skewed_walls: trajectories 0.072 m median with every wall's
+    #: steps, 0.035 m with the walls along the track only)
+    PHASE_POSES_SIGMA_M = 0.003
+    PHASE_POSES_MAX_TILT_DEG = 5.0
+
+    def _phase_poses(self, det, odometry, poses, state, axial):
+        """The poses of one more adjustment from `poses` (_adjust_poses), with the walls'
+        carrier phase (PHASE_POSES_SIGMA_M, PHASE_POSES_MAX_TILT_DEG) and the odometry's
+        scale held where the last round put it (the phase measures the heading, not the
+        distance travelled). The round's own fit (stats) is left as it was. None where no
+        wall gives phase steps."""
+        _, wall_cls = self._classify(state)
+        saved = (self.PHASE_STEP_SIGMA_M, self.PHASE_STEP_DRIFT_ONLY, self.PHASE_STEP_MAX_TILT_DEG,
+                 self._odometry_fit, self._scale_latched)
+        scale = float(saved[3]["odometry_scale"]) if saved[3] else 1.0
+        try:
+            self.PHASE_STEP_SIGMA_M = self.PHASE_POSES_SIGMA_M
+            self.PHASE_STEP_DRIFT_ONLY = False
+            self.PHASE_STEP_MAX_TILT_DEG = self.PHASE_POSES_MAX_TILT_DEG
+            adjusted = self._adjust_poses(det, odometry, poses, state, wall_cls, axial, scale_at=scale)
+            self._phase_fit = dict(self._odometry_fit or {})
+        finally:
+            (self.PHASE_STEP_SIGMA_M, self.PHASE_STEP_DRIFT_ONLY, self.PHASE_STEP_MAX_TILT_DEG,
+             self._odometry_fit, self._scale_latched) = saved
+        # no wall along the track held its echo from pose to pose: the phase has nothing to
+        # add, and the map stays on the rounds' poses
+        return adjusted if self._phase_fit.get("adjustment_phase_steps", 0) > 0 else None
+
+    @staticmethod
+    def _pose_deltas(old, new):
+        """(P, 2, 2) rotations and (P, 2) translations taking world points seen from old[g] to
+        where they lie seen from new[g]."""
+        turn = _wrap(new[:, 2] - old[:, 2])
+        c, s = np.cos(turn), np.sin(turn)
+        rot = np.stack((np.stack((c, -s), -1), np.stack((s, c), -1)), -2)
+        shift = new[:, :2] - np.einsum("pij,pj->pi", rot, old[:, :2])
+        return rot, shift
+
+    def _warp_map(self, result, old, new):
+        """result (FusedMap) moved in place from poses `old` to `new` ((P, 3) each): every
+        point (walls' ends, detections, echoes, corners, scatterers, openings' ends) by the
+        rigid move of the pose nearest it, which is the pose that sees it abeam along a
+        corridor; a wall's normal turned with its ends, toward the same side."""
+        rot, shift = self._pose_deltas(old, new)
+        robots = old[:, :2]
+
+        def moved(points):
+            points = np.asarray(points, float).reshape(-1, 2)
+            if points.shape[0] == 0:
+                return points
+            g = np.argmin(((points[:, None, :] - robots[None, :, :]) ** 2).sum(-1), axis=1)
+            return np.einsum("nij,nj->ni", rot[g], points) + shift[g]
+
+        for w in result.walls:
+            a, b = moved(np.vstack((w.start_m, w.end_m)))
+            d = b - a
+            length = float(np.hypot(*d))
+            if length > 0:
+                n = np.array([-d[1], d[0]]) / length
+                w.normal = n if float(n @ w.normal) >= 0 else -n
+            w.start_m, w.end_m = a, b
+        for c in result.corners:
+            c.position_m = moved(c.position_m)[0]
+        result.scatterers = [(moved(p)[0], n) for p, n in result.scatterers]
+        for points in (result.detections, result.echoes):
+            for cls in list(points):
+                points[cls] = moved(points[cls])
+        for o in result.openings:
+            a, b = moved(np.vstack((o.start_m, o.end_m)))
+            o.start_m, o.end_m = a, b
+        result.trajectory = new.copy()
+        result.stats["geometry_on_phase_poses"] = True
+        if self._phase_fit:
+            result.stats["phase_poses_drift_deg_per_m"] = self._phase_fit["odometry_drift_deg_per_m"]
+            result.stats["phase_poses_steps"] = self._phase_fit["adjustment_phase_steps"]
+            result.stats["phase_poses_moved_m"] = float(np.max(np.hypot(*(new[:, :2] - old[:, :2]).T)))
+
     def _sequential_poses(self, det, odometry, shifts, ghosts):
         """An extended Kalman filter over the pose: predicted with each odometry increment
         (its covariance grown by the odometry error model, so that a heading error shows up as
@@ -2785,14 +2883,15 @@ class WallFusion:
         return poses
 
     def _adjust_poses(self, det, odometry, poses, state, wall_cls, axial=(), drift_held=None, scale_held=False,
-                      without_phase=False):
+                      without_phase=False, scale_at=None):
         """Least-squares adjustment of every pose with the line-of-sight walls, corners and
         axial landmarks (_axial_landmarks: walls across the track, ranged on the CSI) as
         landmarks, the walls' path changes from pose to pose on the carrier's phase where
         PHASE_STEP_SIGMA_M is set (_phase_steps), and the odometry increments as constraints
         (sparse Levenberg-Marquardt, _levenberg_marquardt). drift_held: the heading drift
         (rad/m) held, the phase steps left out (PHASE_STEP_DRIFT_ONLY's second solve), and the
-        scale held at 1 with scale_held; without_phase: the phase steps left out."""
+        scale held at 1 with scale_held; without_phase: the phase steps left out; scale_at:
+        the odometry's scale held at this value (_phase_poses)."""
         from scipy.sparse import coo_matrix
 
         s = self.settings
@@ -2875,7 +2974,7 @@ class WallFusion:
                                         walls[k]["centre"] @ walls[k]["normal"]] for k in line_rep]).reshape(-1),
                              np.array([c for c, _ in landmarks]).reshape(-1), np.array(ax_lines).reshape(-1),
                              np.zeros(n_bias), np.zeros(n_free), [0.0],
-                             [1.0, 0.0 if drift_held is None else drift_held]])
+                             [1.0 if scale_at is None else scale_at, 0.0 if drift_held is None else drift_held]])
         n_fixed = n_pose + n_wall + n_corner + n_axial  # the knots follow
         steps = [_relative(odometry[g - 1], odometry[g]) for g in range(1, P)]
         sig_xy = np.array([max(s.odometry_scale_sigma * math.hypot(st[0], st[1]), s.odometry_position_sigma_m) for st in steps])
@@ -2915,6 +3014,9 @@ class WallFusion:
         drift_centre = 0.0 if drift_held is None else drift_held
         if drift_held is not None:
             prior[1] *= 1e-6
+        scale_centre = 1.0 if scale_at is None else scale_at
+        if scale_at is not None:
+            prior[0] *= 1e-6
 
         def residuals(x):
             ps, wl, cr, ax, bias, lean, scale, drift = unpack(x)
@@ -2926,7 +3028,7 @@ class WallFusion:
                                    (rel[:, 1] - scale * steps_arr[:, 1]) / sig_xy,
                                    _wrap(b[:, 2] - a[:, 2] - steps_arr[:, 2] + drift * step_len) / sig_h))
             out = odo.reshape(-1).tolist()
-            out.extend([(scale - 1.0) / prior[0], (drift - drift_centre) / prior[1], lean / lean_prior])
+            out.extend([(scale - scale_centre) / prior[0], (drift - drift_centre) / prior[1], lean / lean_prior])
             if obs_w:
                 pw, nw = self._to_world(points_r[obs_w_arr], normals_r[obs_w_arr], ps, group[obs_w_arr])
                 phi = wl[slot_of, 0]
@@ -3051,6 +3153,8 @@ class WallFusion:
         # (with the drift held, the scale is held where the caller found it held without the
         # phase steps)
         held = bool(np.all(z < self.SYSTEMATIC_SIGNIFICANCE)) if drift_held is None else bool(scale_held)
+        if scale_at is not None:
+            held = False
         # a scale further from 1 than the odometry can be off is not a measurement but echoes
         # tied to the wrong landmark (an end wall's corners, a partition seen end-on): held at
         # 1, the drift left to the data (office floors re-simulated without an axial landmark
@@ -3059,7 +3163,8 @@ class WallFusion:
         # near the limit otherwise flips between held and free from one round to the next
         # (office_floor seed 2: 0.971, 1, 0.976, 1, ... moving the last pose 0.2-0.6 m a
         # round), and the map is wherever the last round leaves that cycle
-        implausible = self._scale_latched or bool(abs(scale - 1.0) > self.SCALE_PLAUSIBLE_SIGMAS * s.odometry_scale_sigma)
+        implausible = scale_at is None and (self._scale_latched or bool(
+            abs(scale - 1.0) > self.SCALE_PLAUSIBLE_SIGMAS * s.odometry_scale_sigma))
         self._scale_latched = implausible
         if held or implausible:
             prior[:] = [1e-6 * prior[0], 1e-6 * prior[1] if held and drift_held is None else prior[1]]
@@ -3082,7 +3187,7 @@ class WallFusion:
                               "odometry_drift_sigma_deg_per_m": math.degrees(float(sigma_fit[1])),
                               "odometry_systematic_held": held, "odometry_scale_implausible": implausible,
                               "adjustment_optimality": float(solution.optimality),
-                              "orientation_lean_deg": math.degrees(float(lean))}
+                              "orientation_lean_deg": math.degrees(float(lean)), "adjustment_phase_steps": int(ph_g.size)}
         return ps
 
     def _bistatic_lengths(self, poses, normals, offsets):
@@ -3113,6 +3218,7 @@ class WallFusion:
         refiner = self.refiner
         wavelength = bistatic.SPEED_OF_LIGHT_M_S / self.radar.carrier_hz
         out = []
+        max_tilt = None if self.PHASE_STEP_MAX_TILT_DEG is None else math.sin(math.radians(self.PHASE_STEP_MAX_TILT_DEG))
         for k, slot in wall_slot.items():
             w = walls[k]
             gains = {}
@@ -3122,6 +3228,11 @@ class WallFusion:
                     gains[g] = z
             if len(gains) < 2:
                 continue
+            if max_tilt is not None:  # the wall against the heading of the poses that see it
+                h = poses[list(gains), 2]
+                heading = np.array([np.mean(np.cos(h)), np.mean(np.sin(h))])
+                if abs(float(w["normal"] @ heading)) > max_tilt * float(np.hypot(*heading)):
+                    continue
             floor = self.PHASE_STEP_MIN_GAIN * float(np.median(np.abs(list(gains.values()))))
             pairs = [g for g in gains if g + 1 in gains and min(abs(gains[g]), abs(gains[g + 1])) >= floor
                      and float(np.hypot(*(poses[g + 1, :2] - poses[g, :2]))) <= self.PHASE_STEP_MAX_M]
