@@ -1395,7 +1395,9 @@ class qa_wall_refinement(gr_unittest.TestCase):
         pose to the next (WallFusion._phase_steps) gives that growth to 2 mm RMS, 4 mm at
         worst, without a bias (the 40 steps' sum to 4 mm), where the fits' delays give a
         pose's path to centimetres; and it measures the wall, not the map: the same with the
-        wall mapped 4 cm off and turned 1°."""
+        wall mapped 4 cm off and turned 1°. With the steps limited to walls within 2° of the
+        heading of the poses that see them (WallFusion.PHASE_STEP_MAX_TILT_DEG) this 3° wall
+        gives none; within 5°, the same steps."""
         angle = math.radians(3.0)
         data = straight_survey_data([{"name": "south", "segment": [[-2.0, -1.075], [12.0, -1.075]],
                                       "material": "plasterboard"}], 8.0, 0.2)
@@ -1422,6 +1424,12 @@ class qa_wall_refinement(gr_unittest.TestCase):
             self.assertLess(float(np.max(np.abs(error))), 4e-3, error)
             # and no bias that would add up along the wall: the whole run's growth to 3 mm
             self.assertLess(abs(float(np.sum(error))), 4e-3, (np.sum(measured), np.sum(expected)))
+        mapped = dict(wall(-1.0), t0=-20.0, t1=20.0)
+        all_steps = fusion._phase_steps({"walls": [mapped]}, sc.poses, [fusion_module.LOS], {0: 0})
+        for max_tilt_deg, expected_steps in ((2.0, []), (5.0, all_steps)):
+            fusion.PHASE_STEP_MAX_TILT_DEG = max_tilt_deg
+            self.assertEqual(fusion._phase_steps({"walls": [mapped]}, sc.poses, [fusion_module.LOS], {0: 0}),
+                             expected_steps, max_tilt_deg)
 
     def test_carrier_phase_measures_the_odometry_drift(self):
         """A corridor 2 m wide (plasterboard faces at y = -1 and +1), 10 m driven down its
