@@ -29,7 +29,6 @@ import contextlib  # noqa: E402
 import io  # noqa: E402
 import json  # noqa: E402
 import sys  # noqa: E402
-import tempfile  # noqa: E402
 from multiprocessing import Pool  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -42,11 +41,8 @@ MODES = (("rounds", False), ("moved", True))
 
 
 def scored(fused, truth):
-    """thrumapper-eval's figures of a FusedMap against a truth GeoJSON path."""
-    with tempfile.TemporaryDirectory() as tmp:
-        path = os.path.join(tmp, "map.geojson")
-        fused.write_geojson(path)
-        score = evaluation.score_map(path, truth)
+    """thrumapper-eval's figures of a FusedMap against the truth (evaluation.MapData)."""
+    score = evaluation.score_map(fused.to_geojson(), truth)
     los, hidden = score["classes"]["line_of_sight"], score["classes"]["hidden"]
     true_m = los["truth_wall_length_m"] + hidden["truth_wall_length_m"]
     return {"los_m": los["detections"]["rms_m"], "hidden_m": hidden["detections"]["rms_m"],
@@ -59,7 +55,8 @@ def survey(job):
     scene, seed, out = job
     path = os.path.join(office_surveys.SCENES_DIR, scene + ".yaml")
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        _, info, truth = office_surveys.mapped(path, scene, seed, out, build=False)
+        _, info, truth_path = office_surveys.mapped(path, scene, seed, out, build=False)
+        truth = evaluation.load_map(truth_path, "truth")
         row = {"scene": scene, "seed": seed}
         for name, on in MODES:
             fused = office_surveys.remapped(info, PHASE_POSES_FOR_GEOMETRY=on)

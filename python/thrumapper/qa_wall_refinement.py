@@ -1396,7 +1396,7 @@ class qa_wall_refinement(gr_unittest.TestCase):
         worst, without a bias (the 40 steps' sum to 4 mm), where the fits' delays give a
         pose's path to centimetres; and it measures the wall, not the map: the same with the
         wall mapped 4 cm off and turned 1°. With the steps limited to walls within 2° of the
-        heading of the poses that see them (WallFusion.PHASE_STEP_MAX_TILT_DEG) this 3° wall
+        heading of the poses that see them (WallFusion._phase_steps' max_tilt_deg) this 3° wall
         gives none; within 5°, the same steps."""
         angle = math.radians(3.0)
         data = straight_survey_data([{"name": "south", "segment": [[-2.0, -1.075], [12.0, -1.075]],
@@ -1427,9 +1427,8 @@ class qa_wall_refinement(gr_unittest.TestCase):
         mapped = dict(wall(-1.0), t0=-20.0, t1=20.0)
         all_steps = fusion._phase_steps({"walls": [mapped]}, sc.poses, [fusion_module.LOS], {0: 0})
         for max_tilt_deg, expected_steps in ((2.0, []), (5.0, all_steps)):
-            fusion.PHASE_STEP_MAX_TILT_DEG = max_tilt_deg
-            self.assertEqual(fusion._phase_steps({"walls": [mapped]}, sc.poses, [fusion_module.LOS], {0: 0}),
-                             expected_steps, max_tilt_deg)
+            self.assertEqual(fusion._phase_steps({"walls": [mapped]}, sc.poses, [fusion_module.LOS], {0: 0},
+                                                 max_tilt_deg=max_tilt_deg), expected_steps, max_tilt_deg)
 
     def test_carrier_phase_measures_the_odometry_drift(self):
         """A corridor 2 m wide (plasterboard faces at y = -1 and +1), 10 m driven down its

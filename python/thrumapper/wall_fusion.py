@@ -761,9 +761,6 @@ class WallFusion:
     #: holds answers with a steady offset per step), so that what they measure is how the
     #: path's change changes along the wall: the heading's drift
     PHASE_STEP_MIN_STEPS = 8
-    #: ...from walls within this angle of the heading of the poses that see them only (None:
-    #: every wall)
-    PHASE_STEP_MAX_TILT_DEG = None
     #: the pose adjustment's model of the CSI fits' runs of bias along a line-of-sight wall
     #: (with the CSI): their size, how far along the wall they hold, the knots' spacing
     #: (_adjust_poses). Off (0: the fits taken as white noise): with 5 cm the office maps
@@ -2662,11 +2659,12 @@ class WallFusion:
             stats["adjustment_last_move_m"] = moved_m
             state, shifts, ghosts = refine(poses, shifts, ghosts)
             corrected = True
+        det_cls, wall_cls = self._classify(state)
         phase_poses = None
         self._phase_fit = None
         if corrected and self.PHASE_POSES_FOR_GEOMETRY and self._fits_on_csi:
-            phase_poses = self._timed("pose correction", self._phase_poses, det, odometry, poses, state, axial)
-        det_cls, wall_cls = self._classify(state)
+            phase_poses = self._timed("pose correction", self._phase_poses, det, odometry, poses, state, wall_cls,
+                                      axial)
         end_walls = self._timed("end walls", self._end_walls, state, poses, wall_cls, axial) \
             if self._fits_on_csi else []
         side_walls = self._timed("side walls", self._side_walls, state, poses, wall_cls) \
@@ -2716,25 +2714,19 @@ class WallFusion:
     PHASE_POSES_SIGMA_M = 0.003
     PHASE_POSES_MAX_TILT_DEG = 5.0
 
-    def _phase_poses(self, det, odometry, poses, state, axial):
+    def _phase_poses(self, det, odometry, poses, state, wall_cls, axial):
         """The poses of one more adjustment from `poses` (_adjust_poses), with the walls'
         carrier phase (PHASE_POSES_SIGMA_M, PHASE_POSES_MAX_TILT_DEG) and the odometry's
         scale held where the last round put it (the phase measures the heading, not the
         distance travelled). The round's own fit (stats) is left as it was. None where no
         wall gives phase steps."""
-        _, wall_cls = self._classify(state)
-        saved = (self.PHASE_STEP_SIGMA_M, self.PHASE_STEP_DRIFT_ONLY, self.PHASE_STEP_MAX_TILT_DEG,
-                 self._odometry_fit, self._scale_latched)
-        scale = float(saved[3]["odometry_scale"]) if saved[3] else 1.0
-        try:
-            self.PHASE_STEP_SIGMA_M = self.PHASE_POSES_SIGMA_M
-            self.PHASE_STEP_DRIFT_ONLY = False
-            self.PHASE_STEP_MAX_TILT_DEG = self.PHASE_POSES_MAX_TILT_DEG
-            adjusted = self._adjust_poses(det, odometry, poses, state, wall_cls, axial, scale_at=scale)
-            self._phase_fit = dict(self._odometry_fit or {})
-        finally:
-            (self.PHASE_STEP_SIGMA_M, self.PHASE_STEP_DRIFT_ONLY, self.PHASE_STEP_MAX_TILT_DEG,
-             self._odometry_fit, self._scale_latched) = saved
+        rounds_fit = self._odometry_fit
+        scale = float(rounds_fit["odometry_scale"]) if rounds_fit else 1.0
+        adjusted = self._adjust_poses(det, odometry, poses, state, wall_cls, axial, scale_at=scale,
+                                      phase_sigma_m=self.PHASE_POSES_SIGMA_M,
+                                      phase_max_tilt_deg=self.PHASE_POSES_MAX_TILT_DEG)
+        self._phase_fit = dict(self._odometry_fit or {})
+        self._odometry_fit = rounds_fit
         # no wall along the track held its echo from pose to pose: the phase has nothing to
         # add, and the map stays on the rounds' poses
         return adjusted if self._phase_fit.get("adjustment_phase_steps", 0) > 0 else None
@@ -2752,10 +2744,11 @@ class WallFusion:
     def _warp_map(self, result, old, new):
         """result (FusedMap) moved in place from poses `old` to `new` ((P, 3) each): every
         point (walls' ends, detections, echoes, corners, scatterers, openings' ends) by the
-        rigid move of the pose nearest it, which is the pose that sees it abeam along a
-        corridor; a wall's normal turned with its ends, toward the same side."""
+        rigid move of the pose whose arrays' midpoint is nearest it, which is the pose that
+        sees it abeam along a corridor; a wall's normal turned with its ends, toward the same
+        side."""
         rot, shift = self._pose_deltas(old, new)
-        robots = old[:, :2]
+        robots = self._robot_positions(old)
 
         def moved(points):
             points = np.asarray(points, float).reshape(-1, 2)
@@ -2883,7 +2876,7 @@ class WallFusion:
         return poses
 
     def _adjust_poses(self, det, odometry, poses, state, wall_cls, axial=(), drift_held=None, scale_held=False,
-                      without_phase=False, scale_at=None):
+                      without_phase=False, scale_at=None, phase_sigma_m=None, phase_max_tilt_deg=None):
         """Least-squares adjustment of every pose with the line-of-sight walls, corners and
         axial landmarks (_axial_landmarks: walls across the track, ranged on the CSI) as
         landmarks, the walls' path changes from pose to pose on the carrier's phase where
@@ -2891,7 +2884,10 @@ class WallFusion:
         (sparse Levenberg-Marquardt, _levenberg_marquardt). drift_held: the heading drift
         (rad/m) held, the phase steps left out (PHASE_STEP_DRIFT_ONLY's second solve), and the
         scale held at 1 with scale_held; without_phase: the phase steps left out; scale_at:
-        the odometry's scale held at this value (_phase_poses)."""
+        the odometry's scale held at this value, the implausible scale's latch left alone;
+        phase_sigma_m: the phase steps used with this noise floor whatever
+        PHASE_STEP_SIGMA_M and PHASE_STEP_DRIFT_ONLY say, from the walls within
+        phase_max_tilt_deg of the track (_phase_steps; both for _phase_poses)."""
         from scipy.sparse import coo_matrix
 
         s = self.settings
@@ -2932,8 +2928,9 @@ class WallFusion:
             ax_lines.append(float(np.mean(pw @ normal)))
         ax_normals = np.array(ax_normals).reshape(-1, 2)
         # the walls' paths from pose to pose, on the carrier's phase (_phase_steps)
-        phase = self._phase_steps(state, poses, wall_cls, wall_slot) \
-            if self._fits_on_csi and self.PHASE_STEP_SIGMA_M > 0 and drift_held is None and not without_phase else []
+        phase_floor_m = self.PHASE_STEP_SIGMA_M if phase_sigma_m is None else phase_sigma_m
+        phase = self._phase_steps(state, poses, wall_cls, wall_slot, phase_floor_m, phase_max_tilt_deg) \
+            if self._fits_on_csi and phase_floor_m > 0 and drift_held is None and not without_phase else []
         ph_g = np.array([q[0] for q in phase], int)
         ph_slot = np.array([q[1] for q in phase], int)
         ph_step = np.array([q[2] for q in phase], float)
@@ -3165,12 +3162,13 @@ class WallFusion:
         # round), and the map is wherever the last round leaves that cycle
         implausible = scale_at is None and (self._scale_latched or bool(
             abs(scale - 1.0) > self.SCALE_PLAUSIBLE_SIGMAS * s.odometry_scale_sigma))
-        self._scale_latched = implausible
+        if scale_at is None:
+            self._scale_latched = implausible
         if held or implausible:
             prior[:] = [1e-6 * prior[0], 1e-6 * prior[1] if held and drift_held is None else prior[1]]
             x, solution = solve(x0)
         ps, _, _, _, _, lean, scale, drift = unpack(x)
-        if ph_g.size and self.PHASE_STEP_DRIFT_ONLY:
+        if ph_g.size and self.PHASE_STEP_DRIFT_ONLY and phase_sigma_m is None:
             # the phase steps measure the heading, not the distance travelled: the scale is
             # held at 1 where the adjustment without them holds it
             # (that solve keeps the implausible scale's latch: it only ever sets it)
@@ -3196,11 +3194,13 @@ class WallFusion:
         tx, rx = self._legs_from(poses, np.arange(len(poses)))
         return np.hypot(*(rx - bistatic.mirror(tx, normals * offsets[:, None], normals)).T)
 
-    def _phase_steps(self, state, poses, wall_cls, wall_slot):
+    def _phase_steps(self, state, poses, wall_cls, wall_slot, sigma_floor_m=None, max_tilt_deg=None):
         """The change of each line-of-sight wall's echo path from a pose to the next, measured
         on the carrier's phase: [(g, slot, metres, sigma, k)] for poses g and g + 1, the
         adjustment's line `slot` (wall_slot: map wall k -> line) and the noise of wall k's
-        steps (their scatter about their running median, at least PHASE_STEP_SIGMA_M).
+        steps (their scatter about their running median, at least sigma_floor_m:
+        PHASE_STEP_SIGMA_M unless given); with max_tilt_deg, only from the walls within that
+        angle of the mean heading of the poses that see them.
 
         At each pose the wall's modelled echo (everything else modelled projected out) is
         fitted to the CSI with a free complex gain; its phase is the model's path error at the
@@ -3218,7 +3218,8 @@ class WallFusion:
         refiner = self.refiner
         wavelength = bistatic.SPEED_OF_LIGHT_M_S / self.radar.carrier_hz
         out = []
-        max_tilt = None if self.PHASE_STEP_MAX_TILT_DEG is None else math.sin(math.radians(self.PHASE_STEP_MAX_TILT_DEG))
+        floor_m = self.PHASE_STEP_SIGMA_M if sigma_floor_m is None else sigma_floor_m
+        max_tilt = None if max_tilt_deg is None else math.sin(math.radians(max_tilt_deg))
         for k, slot in wall_slot.items():
             w = walls[k]
             gains = {}
@@ -3247,7 +3248,7 @@ class WallFusion:
             # the wall's own noise: the steps' scatter about their running median (along a
             # wall the path changes smoothly; an echo that is not this wall's does not)
             smooth = np.array([np.median(measured[max(0, i - 2):i + 3]) for i in range(a.size)])
-            sigma = max(self.PHASE_STEP_SIGMA_M, 1.4826 * float(np.median(np.abs(measured - smooth))))
+            sigma = max(floor_m, 1.4826 * float(np.median(np.abs(measured - smooth))))
             out.extend((int(g), int(slot), float(m), sigma, int(k)) for g, m in zip(a, measured))
         return out
 
