@@ -5,6 +5,7 @@
 """Wall fusion on echoes computed from geometry (exact angles and delays of known walls,
 corners, clutter and multipath ghosts), the block with messages, and bad input."""
 
+import dataclasses
 import json
 import math
 
@@ -1169,6 +1170,45 @@ class qa_wall_fusion(gr_unittest.TestCase):
         fusion._warp_map(bent, poses, bent_poses)
         lift = np.where(before[:, 0] > 5.1, 0.1, 0.0)
         np.testing.assert_allclose(points(bent), before + np.column_stack((np.zeros(len(before)), lift)), atol=1e-9)
+
+    def test_doorway_on_a_moved_piece_kept_on_its_new_line(self):
+        """WallFusion._kept_openings: a doorway the doorway test finds on the old line of a
+        piece _onto_side_lines moved (tilted 7 degrees, 0.3 m in front of the side wall), and
+        not on the map after the move, is kept, its ends projected onto the piece's new line
+        (the side wall's, y = 1); a doorway found both before and after the move is kept
+        once; with no piece moved the doorway test runs once, as it is."""
+        def line(centre, angle_deg):
+            a = math.radians(angle_deg)
+            direction = np.array([math.cos(a), math.sin(a)])
+            return {"centre": np.asarray(centre, float), "direction": direction,
+                    "normal": np.array([direction[1], -direction[0]]), "t0": -1.5, "t1": 1.5}
+
+        old, new = line([16.0, 0.7], 7.0), line([16.0, 1.0], 0.0)
+        old_door = MapOpening(old["centre"] - 2.6 * old["direction"], old["centre"] - 1.7 * old["direction"],
+                              old["normal"].copy(), 0.8, 4, 0.1)
+        both = MapOpening(np.array([8.0, 1.0]), np.array([8.9, 1.0]), np.array([0.0, -1.0]), 0.8, 4, 0.1)
+        calls = []
+
+        def doorway_test(state, poses, wall_cls, side_walls):
+            calls.append(state["walls"][0] is old)
+            return [old_door, both] if state["walls"][0] is old else [dataclasses.replace(both)]
+
+        fusion = WallFusion(RADAR, exact_settings())
+        fusion._openings = doorway_test
+        fusion._moved_pieces = {0: old}
+        kept = fusion._kept_openings({"walls": [new]}, None, [0], [])
+        self.assertEqual(calls, [True, False])
+        self.assertEqual(len(kept), 2)
+        door = kept[1]
+        for end, was in ((door.start_m, old_door.start_m), (door.end_m, old_door.end_m)):
+            self.assertAlmostEqual(end[1], 1.0, places=12)  # on the side wall's line
+            self.assertAlmostEqual(end[0], was[0], places=12)  # where it was along it
+        np.testing.assert_allclose(door.normal, new["normal"], atol=1e-12)
+        self.assertLess(door.start_m[0], 14.0)
+        calls.clear()
+        fusion._moved_pieces = {}
+        self.assertEqual(len(fusion._kept_openings({"walls": [new]}, None, [0], [])), 1)
+        self.assertEqual(calls, [False])
 
     def test_map_pmt(self):
         fusion = WallFusion(RADAR, exact_settings(correct_poses=False))
