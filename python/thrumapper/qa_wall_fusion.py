@@ -617,7 +617,9 @@ class qa_wall_fusion(gr_unittest.TestCase):
         (within 8 m and 75 deg of its normal from some pose, as the truth maps say): the
         double is the same wall, not a wall between, and does not hide the stretch behind it
         (_seen_through_doorways). A dip in the back wall's echo on its own line bounds the view
-        (a partition); a dip on the double's line, 0.25 m off, does not. With every mapped wall
+        (a partition); a dip on the double's line, 0.25 m off, does not, neither for the back
+        wall nor for the double, which takes the dips of the longer line it doubles
+        (VISIBLE_DIPS_OF_MAIN_LINE: there its own echo ends). With every mapped wall
         blocking (VISIBLE_SAME_LINE_M = None), the stretch behind the double stays hidden. A
         piece fitted off its line in the corridor, between the doorway and the track (from
         (1.5, -0.8) to (4.0, -0.5)), does not block the view either
@@ -627,7 +629,7 @@ class qa_wall_fusion(gr_unittest.TestCase):
         def wall(x0, x1, y, cls):
             return MapWall(np.array([x0, y]), np.array([x1, y]), up.copy(), cls, 0.9, 10, 10, 0.01)
 
-        def seen(dips=(), in_corridor=False, **changes):
+        def seen(dips=(), in_corridor=False, return_double=False, **changes):
             fusion = WallFusion(RADAR, exact_settings(correct_poses=False))
             for name, value in changes.items():
                 setattr(fusion, name, value)
@@ -640,11 +642,19 @@ class qa_wall_fusion(gr_unittest.TestCase):
             opening = MapOpening(np.array([2.05, -1.0]), np.array([2.95, -1.0]), up.copy(), 0.9, 4, 0.1)
             detections = {"line_of_sight": [], "hidden": [np.array([x, -3.0]) for x in np.arange(0.0, 6.01, 0.5)]}
             echoes = {"line_of_sight": [], "hidden": []}
+            # the hidden lines' dips: the back wall's line (6.5 m) and the double's (3 m)
+            lines = {-3.0: (-3.5, 3.0), -2.75: (-2.5, 0.5)}
             fusion._seen_through_doorways(walls, [], detections, echoes, [opening], straight_poses(0.0, 8.0),
-                                          [({"normal": up, "centre": np.array([3.0, y]), "direction": np.array([1.0, 0.0])},
-                                            np.array([[x, y]]), np.array([False])) for x, y in dips])
+                                          [({"normal": up, "centre": np.array([3.0, y]), "direction": np.array([1.0, 0.0]),
+                                             "t0": lines[y][0], "t1": lines[y][1]},
+                                            np.array([[x, y] for x in xs]).reshape(-1, 2), np.zeros(len(xs), bool))
+                                           for y, xs in dips])
             back = sorted((w.start_m[0], w.end_m[0]) for w in walls
                           if w.cls == "line_of_sight" and abs(w.start_m[1] + 3.0) < 1e-9)
+            double = sorted((w.start_m[0], w.end_m[0]) for w in walls
+                            if w.cls == "line_of_sight" and abs(w.start_m[1] + 2.75) < 1e-9)
+            if return_double:
+                return double
             return back, np.array(detections["line_of_sight"]).reshape(-1, 2)[:, 0]
 
         back, moved = seen()
@@ -654,12 +664,22 @@ class qa_wall_fusion(gr_unittest.TestCase):
         np.testing.assert_allclose(np.sort(moved), np.arange(0.0, 6.01, 0.5))
         # a partition's dip on the back wall's line at x = 5 ends the view there; one on the
         # double's line does not
-        back, _ = seen(dips=[(5.0, -3.0)])
+        back, _ = seen(dips=[(-3.0, [5.0])])
         self.assertLess(abs(back[-1][1] - 5.0), 0.11, back)
-        back, _ = seen(dips=[(4.0, -2.75)])
+        back, _ = seen(dips=[(-3.0, []), (-2.75, [4.0])])
         self.assertGreater(back[-1][1], 5.9, back)
-        back, _ = seen(dips=[(4.0, -2.75)], VISIBLE_DIP_LINE_M=0.3)  # (taken for the wall's own)
+        back, _ = seen(dips=[(-3.0, []), (-2.75, [4.0])], VISIBLE_DIPS_OF_MAIN_LINE=False)
+        self.assertGreater(back[-1][1], 5.9, back)
+        back, _ = seen(dips=[(-3.0, []), (-2.75, [4.0])], VISIBLE_DIPS_OF_MAIN_LINE=False,
+                       VISIBLE_DIP_LINE_M=0.3)  # (taken for the wall's own)
         self.assertLess(abs(back[-1][1] - 4.0), 0.11, back)
+        # the double, where its own echo ends at x = 1: in view from 0.5 to 3.5 m, bounded by
+        # the back wall's dips (none there); by its own, from 1 m on only
+        double = seen(dips=[(-3.0, []), (-2.75, [1.0])], return_double=True)
+        self.assertEqual(len(double), 1, double)
+        self.assertLess(double[0][0], 0.6, double)
+        double = seen(dips=[(-3.0, []), (-2.75, [1.0])], return_double=True, VISIBLE_DIPS_OF_MAIN_LINE=False)
+        self.assertLess(abs(double[0][0] - 1.0), 0.11, double)
         # a piece in the corridor, in front of the doorway: the back wall still in view
         back, _ = seen(in_corridor=True)
         self.assertEqual(len(back), 1, back)
