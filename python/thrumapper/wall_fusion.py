@@ -1644,7 +1644,8 @@ class WallFusion:
         its echo and that of the side wall's line over the same stretch are each scored alone
         against everything else modelled there (CsiWallRefiner.twin_scores, as for twins);
         where the line explains more, the piece takes the line (its extent kept, its echoes
-        with it). After the pose rounds: the poses do not move with it."""
+        with it). After the pose rounds (the poses do not move with it) and the materials'
+        corrections; a doorway found on the piece's old line is kept (_kept_openings)."""
         if not side_walls or not self._fits_on_csi:
             return {}
         walls, group = state["walls"], state["group"]
@@ -4178,9 +4179,9 @@ class WallFusion:
                     doors.append((o.start_m, o.end_m))
             if not doors:
                 continue
-            # ...and not past a partition's dip on its line, on either side of the door (a dip
-            # within VISIBLE_DIP_LINE_M of the line: one on a double of the wall, fitted 0.2-0.3 m
-            # off it, is where the double's echo ends, not a partition)
+            # ...and not past a partition's dip on its line, on either side of the door: those of
+            # the longest hidden line along it (a double of the wall, fitted 0.2-0.4 m off it,
+            # has dips where its own echo ends, not at a partition; _main_line_dips)
             if self.VISIBLE_DIPS_OF_MAIN_LINE:
                 dips_t = [float((q - w.start_m) @ e) for q in self._main_line_dips(w, dips, cos_line)]
             else:
