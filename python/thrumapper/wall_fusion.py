@@ -3728,7 +3728,8 @@ class WallFusion:
         if not self._moved_pieces:
             return self._openings(state, poses, wall_cls, side_walls)
         walls = state["walls"]
-        self._line_gains = {}  # cached by the indices of the pieces left in (_line_echo)
+        # (build_map emptied the lines' gain cache when the pieces moved; the run on their old
+        # lines fills it with gains keyed by the same indices, so it is emptied again after it)
         before = self._openings(dict(state, walls=[self._moved_pieces.get(k, w) for k, w in enumerate(walls)]),
                                 poses, wall_cls, side_walls)
         self._line_gains = {}
