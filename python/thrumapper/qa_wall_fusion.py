@@ -319,6 +319,35 @@ class qa_wall_fusion(gr_unittest.TestCase):
         # the rule itself is kept: a piece as long as the gap hides what is behind its reach
         self.assertEqual(classes(fusion, 4.0, 10.0), [HIDDEN, LOS])
 
+    def test_doorway_edges_where_the_gain_crosses_the_ratio(self):
+        """A doorway's edges lie where the line's gain ratio crosses OPENING_GAIN_RATIO (0.3),
+        interpolated between the poses either side of it (OPENING_INTERPOLATED_EDGES): poses
+        every 0.2 m, a door's dip two poses deep (0.12, 0.08) between poses at 0.33 and 0.32
+        (office_floor seed 4's open door): the crossings at 7.229 and 7.767 m make it 0.54 m
+        wide, over the 0.5 m minimum. Halfway between the poses it was 0.4 m, and missed. A
+        shoulder just over the ratio moves the edge only a little off the pose under it; a dip
+        of one pose is no doorway either way."""
+        fusion = WallFusion(RADAR, exact_settings())
+        line = {"centre": np.array([0.0, 1.0]), "direction": np.array([1.0, 0.0]), "normal": np.array([0.0, -1.0]),
+                "t0": 0.0, "t1": 10.0}
+        members = [dict(line, centre=np.array([5.0, 1.0]), t0=-5.0, t1=5.0)]
+        t = np.round(np.arange(6.39, 8.6, 0.2), 2)
+        ratio = np.array([1.0, 0.97, 1.0, 1.04, 0.33, 0.12, 0.08, 0.32, 0.78, 1.03, 1.16, 1.0])
+        self.assertEqual(t.size, ratio.size)
+        fusion.OPENING_INTERPOLATED_EDGES = False
+        self.assertEqual(fusion._openings_along(line, [(0.0, 10.0)], members, t, ratio), [])
+        fusion.OPENING_INTERPOLATED_EDGES = True
+        found = fusion._openings_along(line, [(0.0, 10.0)], members, t, ratio)
+        self.assertEqual(len(found), 1)
+        t0, t1, opening = found[0]
+        self.assertAlmostEqual(t0, 7.19 + 0.2 * 0.03 / 0.21, places=6)
+        self.assertAlmostEqual(t1, 7.79 - 0.2 * 0.02 / 0.24, places=6)
+        self.assertAlmostEqual(opening.width_m, t1 - t0, places=6)
+        np.testing.assert_allclose(opening.start_m, [t0, 1.0], atol=1e-9)
+        one_pose = ratio.copy()
+        one_pose[5] = 0.31
+        self.assertEqual(fusion._openings_along(line, [(0.0, 10.0)], members, t, one_pose), [])
+
     def test_doorway_lines_bridge_a_longer_gap(self):
         """The doorway test (_openings) searches each line of the line-of-sight walls between
         its pieces' outer ends. Two pieces of one corridor wall 4.6 m apart (a stretch round a
