@@ -1530,19 +1530,23 @@ class WallFusion:
                 d_delay[i] = det["delay"][i] - fit[1]
         return d_aoa, d_delay
 
-    def _model_direct_leak(self, poses):
+    def _model_direct_leak(self, poses, min_db=None):
         """Estimate the direct path's leak on the refiner's map (CsiWallRefiner.
         estimate_direct_leak) and keep it modelled in the fits only when it holds at least
-        DIRECT_LEAK_MIN_DB of the data: a weaker estimate is mostly the corridor walls' own
-        echo, and projecting it out would take theirs with it. Not on a track shorter than
-        DIRECT_LEAK_MIN_TRACK_M: there every wall's echo is nearly the same at every pose,
-        as the leak is. Returns the estimate, dB (None when none was made)."""
-        leak_db = None
-        if len(poses) and _path_length(np.asarray(poses))[-1] >= self.DIRECT_LEAK_MIN_TRACK_M:
-            leak_db = self.refiner.estimate_direct_leak()
-        if leak_db is None or leak_db < self.DIRECT_LEAK_MIN_DB:
+        min_db of the data (None: DIRECT_LEAK_MIN_DB): a weaker estimate is
+        mostly the corridor walls' own echo, and projecting it out would take theirs with it.
+        Not on a track shorter than DIRECT_LEAK_MIN_TRACK_M: there every wall's echo is nearly
+        the same at every pose, as the leak is. Returns the estimate, dB (None when none was
+        made)."""
+        leak_db = self.refiner.estimate_direct_leak() if self._long_enough_for_leak(poses) else None
+        if leak_db is None or leak_db < (self.DIRECT_LEAK_MIN_DB if min_db is None else min_db):
             self.refiner.forget_direct_leak()
         return leak_db
+
+    def _long_enough_for_leak(self, poses):
+        """Whether the track is long enough for the direct path's leak to be estimated
+        (DIRECT_LEAK_MIN_TRACK_M)."""
+        return bool(len(poses)) and _path_length(np.asarray(poses))[-1] >= self.DIRECT_LEAK_MIN_TRACK_M
 
     #: a wall is drawn in pieces of each class where the echoes of at least this many
     #: consecutive poses along it are of the class its majority is not (_class_pieces; 0: never)
@@ -2432,19 +2436,18 @@ class WallFusion:
         SIDE_WALL_LEAK_MIN_DB is not modelled in the search; after it the first estimate is
         restored, unless SIDE_WALL_LEAK_KEPT. Returns the side walls (the ones given when
         nothing was estimated again: the leak not estimated, or a track too short for it)."""
-        if not self.ESTIMATE_DIRECT_LEAK or not len(poses) \
-                or _path_length(np.asarray(poses))[-1] < self.DIRECT_LEAK_MIN_TRACK_M:
+        if not self.ESTIMATE_DIRECT_LEAK or not self._long_enough_for_leak(poses):
             return side_walls
         first = ({g: data.leak for g, data in self.refiner.poses.items()}, self._direct_leak_db)
+        modelled_before = self.refiner.direct_leak_modelled()
         for _ in range(self.SIDE_WALL_LEAK_ROUNDS):
             self._refiner_map(state, poses, wall_cls, side_walls)
-            leak_db = self.refiner.estimate_direct_leak()
+            leak_db = self._model_direct_leak(
+                poses, -math.inf if self.SIDE_WALL_LEAK_MIN_DB is None else self.SIDE_WALL_LEAK_MIN_DB)
             if leak_db is None:
                 break
-            if self.SIDE_WALL_LEAK_MIN_DB is not None and leak_db < self.SIDE_WALL_LEAK_MIN_DB:
-                self.refiner.forget_direct_leak()
-                if all(leak is None for leak in first[0].values()):
-                    break  # no leak modelled before or now: the search would find the same walls
+            if not modelled_before and not self.refiner.direct_leak_modelled():
+                break  # no leak modelled before or now: the search would find the same walls
             self._leak_estimated = True
             self._direct_leak_db = leak_db
             self._line_gains = {}  # the lines' gains were measured with the other estimate
