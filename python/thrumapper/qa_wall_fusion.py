@@ -347,6 +347,14 @@ class qa_wall_fusion(gr_unittest.TestCase):
         one_pose = ratio.copy()
         one_pose[5] = 0.31
         self.assertEqual(fusion._openings_along(line, [(0.0, 10.0)], members, t, one_pose), [])
+        # a pose beside the dip with too few poses near it for a ratio (inf): that edge halfway
+        # (the dip three poses wide here, so that it stays over the minimum width)
+        no_ratio = ratio.copy()
+        no_ratio[4], no_ratio[7] = np.inf, 0.2
+        found = fusion._openings_along(line, [(0.0, 10.0)], members, t, no_ratio)
+        self.assertEqual(len(found), 1)
+        self.assertAlmostEqual(found[0][0], 0.5 * (7.19 + 7.39), places=6)
+        self.assertAlmostEqual(found[0][1], 7.99 - 0.2 * 0.48 / 0.58, places=6)
 
     def test_doorway_lines_bridge_a_longer_gap(self):
         """The doorway test (_openings) searches each line of the line-of-sight walls between

@@ -3886,9 +3886,11 @@ class WallFusion:
             inside = i > 0 and j + 1 < t.size
             t0, t1 = (0.5 * (t[i - 1] + t[i]), 0.5 * (t[j] + t[j + 1])) if inside else (0.0, 0.0)
             if inside and self.OPENING_INTERPOLATED_EDGES:
+                # (halfway where the pose beside has no finite ratio: too few poses near it)
                 t0, t1 = (float(t[a] + (t[b] - t[a]) * np.clip((ratio[a] - self.OPENING_GAIN_RATIO) /
                                                               max(ratio[a] - ratio[b], 1e-12), 0.0, 1.0))
-                          for a, b in ((i - 1, i), (j + 1, j)))
+                          if math.isfinite(ratio[a]) else halfway
+                          for a, b, halfway in ((i - 1, i, t0), (j + 1, j, t1)))
             if inside and j - i + 1 >= self.OPENING_MIN_POSES and self.OPENING_MIN_M <= t1 - t0 <= self.OPENING_MAX_M:
                 # on the piece nearest the opening's middle: its line, not the first piece's
                 tm = 0.5 * (t0 + t1)
