@@ -757,9 +757,11 @@ class qa_wall_fusion(gr_unittest.TestCase):
     def test_hidden_wall_along_a_side_wall_is_absorbed(self):
         """A side wall found on the CSI along y = 1.0 (facing the track at y = 0) takes over a
         hidden wall whose line lies 0.3 m behind it along the same stretch (the estimator's
-        mixture of two echoes of one delay placed its echoes there), also when 0.3 m before it
-        or turned 4 deg; it leaves a hidden wall 1.5 m behind it (a room's back wall), one along
-        another stretch, one turned 30 deg, and a line-of-sight wall."""
+        mixture of two echoes of one delay placed its echoes there), also when 0.3 m before it,
+        turned 4 deg, or 1.4 m long turned 10 deg from 0.02 to 0.27 m behind it (office_floor
+        seed 10's; not with the angle limited to LINE_ANGLE_DEG, SIDE_WALL_ABSORB_DEG None); it
+        leaves a hidden wall 1.5 m behind it (a room's back wall), one along another stretch,
+        one turned 30 deg, and a line-of-sight wall."""
         fusion = WallFusion(RADAR, exact_settings())
 
         def line(y, x0, x1, turn_deg=0.0):
@@ -772,10 +774,19 @@ class qa_wall_fusion(gr_unittest.TestCase):
 
         side = line(1.0, 0.0, 6.0)
         walls = [line(1.3, 1.0, 5.0), line(0.7, 1.0, 5.0), line(1.3, 1.0, 5.0, 4.0), line(2.5, 0.0, 6.0),
-                 line(1.3, 9.0, 12.0), line(1.3, 2.0, 4.0, 30.0), line(1.3, 1.0, 5.0)]
-        classes = [HIDDEN] * 6 + [LOS]
-        self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, [side]), {0: 0, 1: 0, 2: 0})
+                 line(1.3, 9.0, 12.0), line(1.3, 2.0, 4.0, 30.0), line(1.3, 1.0, 5.0),
+                 line(1.145, 2.3, 3.7, 10.0)]
+        classes = [HIDDEN] * 6 + [LOS, HIDDEN]
+        ends = [walls[7]["centre"] + t * walls[7]["direction"] for t in (walls[7]["t0"], walls[7]["t1"])]
+        self.assertLess(max(abs(e[1] - 1.145) for e in ends), 0.13)  # 0.02-0.27 m behind the side wall
+        self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, [side]), {0: 0, 1: 0, 2: 0, 7: 0})
         self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, []), {})
+        saved = WallFusion.SIDE_WALL_ABSORB_DEG
+        WallFusion.SIDE_WALL_ABSORB_DEG = None
+        try:
+            self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, [side]), {0: 0, 1: 0, 2: 0})
+        finally:
+            WallFusion.SIDE_WALL_ABSORB_DEG = saved
 
     def test_side_wall_search_follows_its_peak(self):
         """A corridor 2 m wide (faces at y = -1 and +1) driven along y = 0, its south wall

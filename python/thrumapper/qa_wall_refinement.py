@@ -1123,6 +1123,53 @@ class qa_wall_refinement(gr_unittest.TestCase):
         north = [w for w in fused.walls if w.source == "partition" and max(w.start_m[1], w.end_m[1]) > 2.1]
         self.assertEqual(north, [])
 
+    def test_partition_found_between_two_offset_pieces_of_the_back_wall(self):
+        """The rooms behind the corridor with one partition, at x = 4.5 m (brick back wall's
+        face y = -3.525 m). The office surveys' maps may hold a room's back wall as two pieces
+        on lines 0.1-0.25 m apart, each ending short of a partition (office_floor_drift seed
+        7: y 3.99 m up to x = 14.8 m, 4.23 m from 15.8 m, the partition at 15.0 m). Made so
+        here: the map's back wall is swapped, before the dips are looked for, for a piece at y
+        = -3.45 m over x = 0-3.6 m and one at y = -3.65 m over x = 5.4-8 m, on lines too far
+        apart to be one (line_tolerance_m). Each line's own pieces (and 0.5 m past them) hold
+        no dip at x = 4.5 m, and no partition is drawn (PARTITION_DIPS_ACROSS_DOUBLES off);
+        the longer line's echo looked at over the other's span too dips there, and the
+        partition is drawn within 0.15 m of x = 4.5 m."""
+        wf = importlib.import_module("gnuradio.thrumapper.wall_fusion")
+        sc = scene.load_scene(rooms_behind_corridor_data(-3.6, (4.5,)))
+        res = building_sim.simulate_survey(sc, progress=False)
+        original = wf.WallFusion._partition_dips
+        swapped = []
+
+        def offset_pieces(fusion, state, poses, wall_cls):
+            walls = list(state["walls"])
+            back = [k for k, w in enumerate(walls) if wall_cls[k] == wf.HIDDEN and abs(w["centre"][1] + 3.525) < 0.3]
+            self.assertEqual(len(back), 1, walls)
+            k = back[0]
+
+            def piece(face_y, x0, x1):
+                return dict(walls[k], centre=np.array([0.5 * (x0 + x1), face_y]), direction=np.array([1.0, 0.0]),
+                            normal=np.array([0.0, 1.0]), t0=-0.5 * (x1 - x0), t1=0.5 * (x1 - x0))
+
+            walls[k:k + 1] = [piece(-3.45, 0.0, 3.6), piece(-3.65, 5.4, 8.0)]
+            classes = list(wall_cls[:k]) + [wf.HIDDEN] * 2 + list(wall_cls[k + 1:])
+            swapped.append(len(fusion._hidden_lines(walls, classes)))
+            return original(fusion, dict(state, walls=walls), poses, classes)
+
+        wf.WallFusion._partition_dips = offset_pieces
+        try:
+            across = mapped_with(sc, res)
+            own = mapped_with(sc, res, PARTITION_DIPS_ACROSS_DOUBLES=False)
+        finally:
+            wf.WallFusion._partition_dips = original
+        self.assertEqual(swapped, [2, 2])  # two lines, not one
+        self.assertFalse(any(w.source == "partition" for w in own.walls), own.walls)
+        partitions = [w for w in across.walls if w.source == "partition"]
+        self.assertEqual(len(partitions), 1, across.walls)
+        w = partitions[0]
+        for end in (w.start_m, w.end_m):
+            self.assertLess(abs(end[0] - 4.5), 0.15, w)
+        self.assertEqual(w.cls, "hidden")
+
     def test_hidden_wall_drawn_on_where_the_csi_holds_its_echo(self):
         """A plasterboard corridor wall (face y = -1.0 m) with another behind it (face y =
         -3.525 m), surveyed along x = 0-8 m; JADE's echoes from beyond 16 ns of excess
