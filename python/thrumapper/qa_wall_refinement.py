@@ -1053,7 +1053,7 @@ class qa_wall_refinement(gr_unittest.TestCase):
         0.3 m of the corridor wall's back face, a hidden corner where it meets the back wall,
         and nothing else across the track; the hidden coverage the truth scores rises by a
         third, with no false wall. Without the dips (PARTITION_GAIN_RATIO = 0) no partition
-        is drawn."""
+        is drawn, unless PARTITION_DRAW_RATIO gives the partitions a ratio of their own."""
         data = rooms_behind_corridor_data(-3.6, (2.0, 5.5))
         sc = scene.load_scene(data)
         res = building_sim.simulate_survey(sc, progress=False)
@@ -1087,6 +1087,10 @@ class qa_wall_refinement(gr_unittest.TestCase):
         coverage_before, _ = scored(none)
         self.assertGreater(coverage, coverage_before + 0.3, (coverage_before, coverage))
         self.assertLess(false_m, 0.05)
+        # the partitions drawn from their own ratio (PARTITION_DRAW_RATIO), the views' dips off
+        drawn = mapped_with(sc, res, PARTITION_GAIN_RATIO=0.0, PARTITION_DRAW_RATIO=0.3)
+        self.assertEqual(sorted(round(w.start_m[0], 6) for w in drawn.walls if w.source == "partition"),
+                         sorted(round(w.start_m[0], 6) for w in partitions))
 
     def test_partition_from_one_pose_deep_dip(self):
         """A room closed at the end of the survey: the brick back wall (face y = -3.525 m)

@@ -3578,9 +3578,12 @@ class WallFusion:
         self._cut_at_openings(walls, corners, openings)
         want_dips = openings or (self._fits_on_csi and s.partitions)
         dips = self._timed("partition dips", self._partition_dips, state, poses, wall_cls) if want_dips else []
+        # (the partitions drawn from dips under PARTITION_DRAW_RATIO; the views bounded by the others)
+        draw_dips = dips if self.PARTITION_DRAW_RATIO is None or not want_dips else \
+            self._timed("partition dips", self._partition_dips, state, poses, wall_cls, self.PARTITION_DRAW_RATIO)
         partitions, partition_corners = [], []
         if self._fits_on_csi and s.partitions:  # (before the views through doors, which they bound)
-            partitions, partition_corners = self._timed("partitions", self._partitions, walls, dips, poses)
+            partitions, partition_corners = self._timed("partitions", self._partitions, walls, draw_dips, poses)
             corners.extend(MapCorner(c.position_m, c.confidence, c.cls, c.num_poses, (len(walls) + n,))
                            for n, c in enumerate(partition_corners))
             walls.extend(partitions)
@@ -3967,6 +3970,11 @@ class WallFusion:
     #: than PARTITION_GAIN_RATIO of the line's median echo gain within OPENING_REFERENCE_M
     #: (_partition_dips)
     PARTITION_GAIN_RATIO = 0.3
+    #: ...the partitions drawn from dips under this ratio instead (None: PARTITION_GAIN_RATIO),
+    #: the views through doorways still bounded at PARTITION_GAIN_RATIO: a partition's dip is
+    #: often 0.3-0.4 (office_floor seed 1's at x = 5 m: 0.31 and 0.33), but with the views
+    #: bounded there too, dips of interference cut rooms' back walls out of sight
+    PARTITION_DRAW_RATIO = None
     #: ...looked for on the line's mapped pieces and this far past their outer ends
     PARTITION_BEYOND_M = 0.5
     #: ...one pose's dip is a partition on its own when under PARTITION_DEEP_RATIO with its
@@ -3985,7 +3993,7 @@ class WallFusion:
         return [(tuple(hidden[i] for i in members), hidden[longest], spans)
                 for members, longest, spans in self._collinear_lines([walls_in[k] for k in hidden])]
 
-    def _partition_dips(self, state, poses, wall_cls):
+    def _partition_dips(self, state, poses, wall_cls, ratio_limit=None):
         """[(line dict, (n, 2) world points, (n,) deep)]: on each line of hidden walls
         (_collinear_groups), the specular points where its echo all but vanishes, and whether
         each is deep enough to be a partition alone (PARTITION_DEEP_RATIO with its neighbours
@@ -3994,8 +4002,10 @@ class WallFusion:
         the baseline of it, along its length (with the corridor wall, two walls): the echo
         drops there, over one to three poses. So does it at the interference of two echoes,
         now and then: a dip bounds a view (_seen_through_doorways), where one too many errs
-        toward the wall's own class."""
+        toward the wall's own class. A dip is a ratio under ratio_limit (None:
+        PARTITION_GAIN_RATIO)."""
         walls_in = state["walls"]
+        limit = self.PARTITION_GAIN_RATIO if ratio_limit is None else ratio_limit
         lines = self._hidden_lines(walls_in, wall_cls)
         if not lines:
             return []
@@ -4008,7 +4018,7 @@ class WallFusion:
             t, _, ratio = self._gain_profile(line, pieces, poses, hull, 5)
             if t.size < 5:
                 continue
-            low = np.flatnonzero(ratio < self.PARTITION_GAIN_RATIO)
+            low = np.flatnonzero(ratio < limit)
             # a lone pose's dip is deep when its neighbours along the line (where they have a
             # ratio) are below the median too: interference dips between echoes near the line
             # rise on either side above it
@@ -4016,7 +4026,7 @@ class WallFusion:
             deep = self._deep_dips(ratio, low, mapped_m)
             out.append((line, line["centre"][None, :] + t[low, None] * line["direction"][None, :], deep))
         if self.PARTITION_DIPS_ACROSS_DOUBLES:
-            self._dips_across_doubles(out, lines, walls_in, poses)
+            self._dips_across_doubles(out, lines, walls_in, poses, limit)
         return out
 
     def _deep_dips(self, ratio, low, mapped_m):
@@ -4036,7 +4046,7 @@ class WallFusion:
     #: the view through the door ran 3.5 m past it). False: each line's own pieces only
     PARTITION_DIPS_ACROSS_DOUBLES = True
 
-    def _dips_across_doubles(self, out, lines, walls_in, poses):
+    def _dips_across_doubles(self, out, lines, walls_in, poses, limit):
         """Adds to `out` (_partition_dips' list, one entry per line of `lines`) the dips of
         each line past its own hull, over the hidden lines it takes: the shorter ones within
         VISIBLE_SAME_LINE_M of it at both ends of their pieces and OPENING_CUT_DEG of its
@@ -4069,7 +4079,7 @@ class WallFusion:
             extent = (min([lo] + [h0 for h0, _ in hulls]), max([hi] + [h1 for _, h1 in hulls]))
             t, _, ratio = self._gain_profile(line, tuple(pieces), poses, extent, 5)
             outside = (t < lo) | (t > hi)
-            low = np.flatnonzero(outside & (ratio < self.PARTITION_GAIN_RATIO))
+            low = np.flatnonzero(outside & (ratio < limit))
             if low.size == 0:
                 continue
             deep = self._deep_dips(ratio, low, sum(walls_in[k]["t1"] - walls_in[k]["t0"] for k in pieces))
