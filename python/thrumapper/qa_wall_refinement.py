@@ -1144,7 +1144,7 @@ class qa_wall_refinement(gr_unittest.TestCase):
         original = wf.WallFusion._partition_dips
         swapped = []
 
-        def offset_pieces(fusion, state, poses, wall_cls):
+        def offset_pieces(fusion, state, poses, wall_cls, ratio_limit=None):
             walls = list(state["walls"])
             back = [k for k, w in enumerate(walls) if wall_cls[k] == wf.HIDDEN and abs(w["centre"][1] + 3.525) < 0.3]
             self.assertEqual(len(back), 1, walls)
@@ -1157,7 +1157,7 @@ class qa_wall_refinement(gr_unittest.TestCase):
             walls[k:k + 1] = [piece(-3.45, 0.0, 3.6), piece(-3.65, 5.4, 8.0)]
             classes = list(wall_cls[:k]) + [wf.HIDDEN] * 2 + list(wall_cls[k + 1:])
             swapped.append(len(fusion._hidden_lines(walls, classes)))
-            return original(fusion, dict(state, walls=walls), poses, classes)
+            return original(fusion, dict(state, walls=walls), poses, classes, ratio_limit)
 
         wf.WallFusion._partition_dips = offset_pieces
         try:

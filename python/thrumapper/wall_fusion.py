@@ -2444,7 +2444,7 @@ class WallFusion:
         nothing was estimated again: the leak not estimated, or a track too short for it)."""
         if not self.ESTIMATE_DIRECT_LEAK or not self._long_enough_for_leak(poses):
             return side_walls
-        first = ({g: data.leak for g, data in self.refiner.poses.items()}, self._direct_leak_db)
+        first_leaks, first_db = {g: data.leak for g, data in self.refiner.poses.items()}, self._direct_leak_db
         modelled_before = self.refiner.direct_leak_modelled()
         for _ in range(self.SIDE_WALL_LEAK_ROUNDS):
             self._refiner_map(state, poses, wall_cls, side_walls)
@@ -2465,9 +2465,9 @@ class WallFusion:
             if settled or not side_walls:
                 break
         if not self.SIDE_WALL_LEAK_KEPT:
-            for g, leak in first[0].items():
+            for g, leak in first_leaks.items():
                 self.refiner.poses[g].leak = leak
-            self._direct_leak_db = first[1]
+            self._direct_leak_db = first_db
             self._line_gains = {}
         return side_walls
 
