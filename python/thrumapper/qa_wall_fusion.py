@@ -728,6 +728,43 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertFalse(any(x0 < 2.0 < x1 for x0, x1 in back), back)
         self.assertFalse(np.any((moved > 0.7) & (moved < 3.3)), moved)
 
+    def test_partition_needs_one_deep_pose_in_its_dip(self):
+        """A room's back wall (face y = -3 m, x = -0.5-10 m) behind a corridor wall (face
+        y = -1 m); poses along y = 0. Its echo dips at x = 4.0 m to 0.25 of the line's median
+        and at 4.2 m to 0.36 (a partition's shadow, one pose deep and one beside it), and at
+        x = 8.0 and 8.2 m to 0.36 and 0.38 (interference: never deep). A partition is drawn
+        between x = 4.0 and 4.1 m (nearer the deeper pose than the poses' mean, 4.1 m, where
+        PARTITION_DEPTH_WEIGHTED = False draws it), across from the back wall to 0.15 m behind
+        the corridor wall's face (PARTITION_BEHIND_FACE_M), and none near 8.1 m; with no core
+        asked for (PARTITION_CORE_RATIO = None) the shallow pair makes a partition too."""
+        up = np.array([0.0, 1.0])
+        walls = [MapWall(np.array([-2.0, -1.0]), np.array([12.0, -1.0]), up.copy(), "line_of_sight", 0.9, 10, 10, 0.01),
+                 MapWall(np.array([-0.5, -3.0]), np.array([10.0, -3.0]), up.copy(), "hidden", 0.9, 10, 10, 0.01)]
+        line = {"normal": up, "centre": np.array([4.75, -3.0]), "direction": np.array([1.0, 0.0]),
+                "t0": -5.25, "t1": 5.25}
+        xs, ratios = [4.0, 4.2, 8.0, 8.2], [0.25, 0.36, 0.36, 0.38]
+        dips = [(line, np.array([[x, -3.0] for x in xs]), np.zeros(len(xs), bool), np.array(ratios))]
+
+        def partitions(**changes):
+            fusion = WallFusion(RADAR, exact_settings(correct_poses=False))
+            for name, value in changes.items():
+                setattr(fusion, name, value)
+            made, corners = fusion._partitions(walls, dips, straight_poses(0.0, 10.0))
+            self.assertEqual(len(made), len(corners))
+            return sorted(made, key=lambda w: w.start_m[0])
+
+        made = partitions()
+        self.assertEqual(len(made), 1, made)
+        self.assertTrue(4.0 < made[0].start_m[0] < 4.09, made[0])
+        self.assertAlmostEqual(made[0].end_m[0], made[0].start_m[0], delta=1e-9)
+        self.assertAlmostEqual(made[0].start_m[1], -3.0, delta=1e-9)
+        self.assertAlmostEqual(made[0].end_m[1], -1.15, delta=1e-9)
+        self.assertEqual((made[0].cls, made[0].source, made[0].num_poses), ("hidden", "partition", 2))
+        self.assertEqual([round(w.start_m[0], 6) for w in partitions(PARTITION_DEPTH_WEIGHTED=False)], [4.1])
+        both = partitions(PARTITION_CORE_RATIO=None)
+        self.assertEqual(len(both), 2, both)
+        self.assertTrue(8.0 < both[1].start_m[0] < 8.2, both)
+
     def test_gap_between_pieces_of_one_wall_is_inferred(self):
         """A corridor wall whose echoes are missing for 2 m (x = 2 .. 4) is drawn across the
         gap as an inferred line-of-sight wall, from one piece's end to the other's, on the wall's

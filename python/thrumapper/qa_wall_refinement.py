@@ -1041,7 +1041,7 @@ class qa_wall_refinement(gr_unittest.TestCase):
         unseen = mapped_with(sc, res, VISIBLE_MIN_M=1e9)
         self.assertEqual(back_walls(unseen, "line_of_sight"), [])
         self.assertTrue(any(x0 < 2.5 < x1 for x0, x1 in back_walls(unseen, "hidden")), unseen.walls)
-        no_dips = mapped_with(sc, res, PARTITION_GAIN_RATIO=0.0)
+        no_dips = mapped_with(sc, res, PARTITION_GAIN_RATIO=0.0, PARTITION_DRAW_RATIO=None)
         self.assertGreater(max(x1 for _, x1 in back_walls(no_dips, "line_of_sight")), 5.5, no_dips.walls)
 
     def test_partitions_drawn_where_the_back_wall_echo_dips(self):
@@ -1052,8 +1052,10 @@ class qa_wall_refinement(gr_unittest.TestCase):
         partition within 0.1 m of each true one, reaching from the back wall's line to within
         0.3 m of the corridor wall's back face, a hidden corner where it meets the back wall,
         and nothing else across the track; the hidden coverage the truth scores rises by a
-        third, with no false wall. Without the dips (PARTITION_GAIN_RATIO = 0) no partition
-        is drawn, unless PARTITION_DRAW_RATIO gives the partitions a ratio of their own."""
+        third, with no false wall. Without the dips (PARTITION_GAIN_RATIO = 0 and
+        PARTITION_DRAW_RATIO = None) no partition is drawn; with the views' dips alone off
+        (PARTITION_GAIN_RATIO = 0) the partitions, drawn from a ratio of their own
+        (PARTITION_DRAW_RATIO), are the same."""
         data = rooms_behind_corridor_data(-3.6, (2.0, 5.5))
         sc = scene.load_scene(data)
         res = building_sim.simulate_survey(sc, progress=False)
@@ -1082,13 +1084,13 @@ class qa_wall_refinement(gr_unittest.TestCase):
         self.assertEqual(len(features), 2)
         coverage, false_m = scored(fused)
 
-        none = mapped_with(sc, res, PARTITION_GAIN_RATIO=0.0)
+        none = mapped_with(sc, res, PARTITION_GAIN_RATIO=0.0, PARTITION_DRAW_RATIO=None)
         self.assertFalse(any(w.source == "partition" for w in none.walls), none.walls)
         coverage_before, _ = scored(none)
         self.assertGreater(coverage, coverage_before + 0.3, (coverage_before, coverage))
         self.assertLess(false_m, 0.05)
         # the partitions drawn from their own ratio (PARTITION_DRAW_RATIO), the views' dips off
-        drawn = mapped_with(sc, res, PARTITION_GAIN_RATIO=0.0, PARTITION_DRAW_RATIO=0.3)
+        drawn = mapped_with(sc, res, PARTITION_GAIN_RATIO=0.0)
         self.assertEqual(sorted(round(w.start_m[0], 6) for w in drawn.walls if w.source == "partition"),
                          sorted(round(w.start_m[0], 6) for w in partitions))
 
@@ -1165,7 +1167,7 @@ class qa_wall_refinement(gr_unittest.TestCase):
             own = mapped_with(sc, res, PARTITION_DIPS_ACROSS_DOUBLES=False)
         finally:
             wf.WallFusion._partition_dips = original
-        self.assertEqual(swapped, [2, 2])  # two lines, not one
+        self.assertTrue(swapped and all(n == 2 for n in swapped), swapped)  # two lines, not one
         self.assertFalse(any(w.source == "partition" for w in own.walls), own.walls)
         partitions = [w for w in across.walls if w.source == "partition"]
         self.assertEqual(len(partitions), 1, across.walls)

@@ -3974,7 +3974,18 @@ class WallFusion:
     #: the views through doorways still bounded at PARTITION_GAIN_RATIO: a partition's dip is
     #: often 0.3-0.4 (office_floor seed 1's at x = 5 m: 0.31 and 0.33), but with the views
     #: bounded there too, dips of interference cut rooms' back walls out of sight
-    PARTITION_DRAW_RATIO = None
+    PARTITION_DRAW_RATIO = 0.4
+    #: ...each partition drawn holding at least one dip under PARTITION_CORE_RATIO (None: any
+    #: dip will do), the poses beside it under PARTITION_DRAW_RATIO counting toward
+    #: PARTITION_MIN_DIPS: a partition's shadow spans one to three poses, one of them deep,
+    #: where interference between two echoes dips to 0.3-0.4 here and there. On the 24 office
+    #: surveys the dips under 0.4 alone drew 12 more of the 264 true partitions and 13 more
+    #: false ones; with a core under 0.3, 12 more true and one false fewer (docs/mapping.md,
+    #: "A partition's shadow over its neighbouring poses")
+    PARTITION_CORE_RATIO = 0.3
+    #: ...and drawn at its dips' mean weighted by their depth under the ratio they were
+    #: found at (False: the plain mean)
+    PARTITION_DEPTH_WEIGHTED = True
     #: ...looked for on the line's mapped pieces and this far past their outer ends
     PARTITION_BEYOND_M = 0.5
     #: ...one pose's dip is a partition on its own when under PARTITION_DEEP_RATIO with its
@@ -3994,7 +4005,7 @@ class WallFusion:
                 for members, longest, spans in self._collinear_lines([walls_in[k] for k in hidden])]
 
     def _partition_dips(self, state, poses, wall_cls, ratio_limit=None):
-        """[(line dict, (n, 2) world points, (n,) deep)]: on each line of hidden walls
+        """[(line dict, (n, 2) world points, (n,) deep, (n,) ratio)]: on each line of hidden walls
         (_collinear_groups), the specular points where its echo all but vanishes, and whether
         each is deep enough to be a partition alone (PARTITION_DEEP_RATIO with its neighbours
         under PARTITION_SHOULDER_RATIO, on a line of PARTITION_LONE_LINE_M or more). A partition meeting a room's back
@@ -4003,7 +4014,7 @@ class WallFusion:
         drops there, over one to three poses. So does it at the interference of two echoes,
         now and then: a dip bounds a view (_seen_through_doorways), where one too many errs
         toward the wall's own class. A dip is a ratio under ratio_limit (None:
-        PARTITION_GAIN_RATIO)."""
+        PARTITION_GAIN_RATIO); its ratio comes with it."""
         walls_in = state["walls"]
         limit = self.PARTITION_GAIN_RATIO if ratio_limit is None else ratio_limit
         lines = self._hidden_lines(walls_in, wall_cls)
@@ -4024,7 +4035,7 @@ class WallFusion:
             # rise on either side above it
             mapped_m = sum(walls_in[k]["t1"] - walls_in[k]["t0"] for k in pieces)
             deep = self._deep_dips(ratio, low, mapped_m)
-            out.append((line, line["centre"][None, :] + t[low, None] * line["direction"][None, :], deep))
+            out.append((line, line["centre"][None, :] + t[low, None] * line["direction"][None, :], deep, ratio[low]))
         if self.PARTITION_DIPS_ACROSS_DOUBLES:
             self._dips_across_doubles(out, lines, walls_in, poses, limit)
         return out
@@ -4085,7 +4096,8 @@ class WallFusion:
             deep = self._deep_dips(ratio, low, sum(walls_in[k]["t1"] - walls_in[k]["t0"] for k in pieces))
             n = by_line[id(line)]
             found = line["centre"][None, :] + t[low, None] * line["direction"][None, :]
-            out[n] = (line, np.vstack([out[n][1], found]), np.concatenate([out[n][2], deep]))
+            out[n] = (line, np.vstack([out[n][1], found]), np.concatenate([out[n][2], deep]),
+                      np.concatenate([out[n][3], ratio[low]]))
 
     #: partitions (_partitions): dips within PARTITION_MERGE_M of each other along a line are
     #: one; PARTITION_MIN_DIPS poses make a partition, fewer need a room's corner on the CSI
@@ -4112,13 +4124,14 @@ class WallFusion:
         corners"). Either alone is also made by clutter and by interference; a dip over
         PARTITION_MIN_DIPS poses, a shorter one that is deep (_partition_dips' flag), or one
         with a corner's run of picks at it, is taken (on the 8 office surveys: 41
-        partitions, two false, docs/mapping.md)."""
+        partitions, two false, docs/mapping.md), if one of its dips is under
+        PARTITION_CORE_RATIO."""
         if len(poses) == 0:
             return [], []
         robots_mean = self._robot_positions(poses).mean(axis=0)
         cos_same = math.cos(math.radians(self.OPENING_CUT_DEG))
         made, corners = [], []
-        for line, found, deep in dips:
+        for line, found, deep, ratio in dips:
             if found.shape[0] == 0:
                 continue
             ts = (found - line["centre"]) @ line["direction"]
@@ -4129,8 +4142,14 @@ class WallFusion:
                     groups_t[-1].append(i)
                 else:
                     groups_t.append([i])
+            weight_limit = self.PARTITION_GAIN_RATIO if self.PARTITION_DRAW_RATIO is None else self.PARTITION_DRAW_RATIO
             for members in groups_t:
-                t_dip = float(np.mean(ts[members]))
+                # (the deeper a pose's dip, the nearer its legs run along the partition: the
+                # shoulders beside a deep dip pulled the mean 0.2 m off it on three maps)
+                weights = np.maximum(weight_limit - ratio[members], 1e-6) if self.PARTITION_DEPTH_WEIGHTED else None
+                t_dip = float(np.average(ts[members], weights=weights))
+                if self.PARTITION_CORE_RATIO is not None and not np.any(ratio[members] < self.PARTITION_CORE_RATIO):
+                    continue
                 if len(members) < self.PARTITION_MIN_DIPS and not (
                         self.PARTITION_LONE_DEEP and deep[members].all()) and not self._corner_at(line, t_dip, poses):
                     continue
@@ -4368,7 +4387,7 @@ class WallFusion:
             if self.VISIBLE_DIPS_OF_MAIN_LINE:
                 dips_t = [float((q - w.start_m) @ e) for q in self._main_line_dips(w, dips, cos_line)]
             else:
-                dips_t = [float((q - w.start_m) @ e) for line, found, _ in dips
+                dips_t = [float((q - w.start_m) @ e) for line, found, *_ in dips
                           if abs(float(line["normal"] @ w.normal)) >= cos_line
                           for q in found if abs(float((q - w.start_m) @ w.normal)) <= self.VISIBLE_DIP_LINE_M]
             for o in facing:
@@ -4445,7 +4464,7 @@ class WallFusion:
         double of a room's back wall, fitted 0.2-0.4 m off it, takes the back wall's dips,
         not those where its own echo ends."""
         best, best_length = None, -1.0
-        for line, found, _ in dips:
+        for line, found, *_ in dips:
             if abs(float(line["normal"] @ wall.normal)) < cos_line:
                 continue
             if any(abs(float((end - line["centre"]) @ line["normal"])) > self.VISIBLE_SAME_LINE_M
