@@ -3979,9 +3979,10 @@ class WallFusion:
     #: dip will do), the poses beside it under PARTITION_DRAW_RATIO counting toward
     #: PARTITION_MIN_DIPS: a partition's shadow spans one to three poses, one of them deep,
     #: where interference between two echoes dips to 0.3-0.4 here and there. On the dips of
-    #: the 24 office maps, scored against the 264 true partitions, the dips under 0.4 alone
-    #: found 17 more of them and 12 more false ones; with a core under 0.3, 12 more true and
-    #: one false fewer (docs/mapping.md, "A partition's shadow over its neighbouring poses")
+    #: the 24 office maps, scored against the 264 true partitions (benchmarks/partition_rules.py),
+    #: the dips under 0.4 alone find 15 more of them and 16 more false ones; with a core under
+    #: 0.3, 10 more true and 2 more false (docs/mapping.md, "A partition's shadow over its
+    #: neighbouring poses"); in the maps, 8 more partitions and none more false
     PARTITION_CORE_RATIO = 0.3
     #: ...and drawn at its dips' mean weighted by their depth under the ratio they were
     #: found at (False: the plain mean)
