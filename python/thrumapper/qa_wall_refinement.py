@@ -1167,7 +1167,7 @@ class qa_wall_refinement(gr_unittest.TestCase):
             own = mapped_with(sc, res, PARTITION_DIPS_ACROSS_DOUBLES=False)
         finally:
             wf.WallFusion._partition_dips = original
-        self.assertTrue(swapped and all(n == 2 for n in swapped), swapped)  # two lines, not one
+        self.assertEqual(swapped, [2, 2])  # two lines, not one (the dips looked for once a map)
         self.assertFalse(any(w.source == "partition" for w in own.walls), own.walls)
         partitions = [w for w in across.walls if w.source == "partition"]
         self.assertEqual(len(partitions), 1, across.walls)

@@ -3577,10 +3577,13 @@ class WallFusion:
         corners.extend(closing_corners)
         self._cut_at_openings(walls, corners, openings)
         want_dips = openings or (self._fits_on_csi and s.partitions)
-        dips = self._timed("partition dips", self._partition_dips, state, poses, wall_cls) if want_dips else []
-        # (the partitions drawn from dips under PARTITION_DRAW_RATIO; the views bounded by the others)
-        draw_dips = dips if self.PARTITION_DRAW_RATIO is None or not want_dips else \
-            self._timed("partition dips", self._partition_dips, state, poses, wall_cls, self.PARTITION_DRAW_RATIO)
+        # one profile per line, its dips split by ratio: the views through doors bounded by those
+        # under PARTITION_GAIN_RATIO, the partitions drawn from those under PARTITION_DRAW_RATIO
+        view_limit = self.PARTITION_GAIN_RATIO
+        draw_limit = view_limit if self.PARTITION_DRAW_RATIO is None else self.PARTITION_DRAW_RATIO
+        found_dips = self._timed("partition dips", self._partition_dips, state, poses, wall_cls,
+                                 max(view_limit, draw_limit)) if want_dips else []
+        dips, draw_dips = self._dips_under(found_dips, view_limit), self._dips_under(found_dips, draw_limit)
         partitions, partition_corners = [], []
         if self._fits_on_csi and s.partitions:  # (before the views through doors, which they bound)
             partitions, partition_corners = self._timed("partitions", self._partitions, walls, draw_dips, poses)
@@ -4040,6 +4043,12 @@ class WallFusion:
         if self.PARTITION_DIPS_ACROSS_DOUBLES:
             self._dips_across_doubles(out, lines, walls_in, poses, limit)
         return out
+
+    @staticmethod
+    def _dips_under(dips, limit):
+        """_partition_dips' list with only the dips whose ratio is under `limit`."""
+        return [(line, points[ratio < limit], deep[ratio < limit], ratio[ratio < limit])
+                for line, points, deep, ratio in dips]
 
     def _deep_dips(self, ratio, low, mapped_m):
         """Whether each dip (indices `low` of the profile's ratio) is a partition on its own:
