@@ -61,6 +61,25 @@ def turned(geojson, angle, pivot):
     return out
 
 
+def trajectory_pairs(files, tool):
+    """[(map path, truth path, map, truth)] (evaluation.load_map's) of the MAP TRUTH pairs in
+    `files`, whose trajectories must hold one pose for one; None when a file does not load or
+    the trajectories do not match, said on stderr prefixed by `tool`."""
+    pairs = []
+    for map_path, truth_path in zip(files[::2], files[1::2]):
+        try:
+            ours = evaluation.load_map(map_path, f"map {map_path}")
+            truth = evaluation.load_map(truth_path, f"truth {truth_path}")
+        except evaluation.MapFormatError as error:
+            print(f"{tool}: {error}", file=sys.stderr)
+            return None
+        if ours.trajectory is None or truth.trajectory is None or len(ours.trajectory) != len(truth.trajectory):
+            print(f"{tool}: {map_path}: the map and the truth need trajectories of the same length", file=sys.stderr)
+            return None
+        pairs.append((map_path, truth_path, ours, truth))
+    return pairs
+
+
 def scores(path, truth_path):
     s = evaluation.score_map(path, truth_path)
     cls = s["classes"]
@@ -68,29 +87,29 @@ def scores(path, truth_path):
             (s.get("trajectory") or {}).get("rms_m"))
 
 
-def main(argv=None):
+def pair_files(argv, doc, script):
+    """The MAP TRUTH ... file names of a command line (argv; a script's docstring `doc` and
+    name `script` for its --help), refused with a usage error unless they come in pairs."""
     parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0],
-        epilog="Example, after ./scripts/demo.sh: benchmarks/map_rotation.py out/map.geojson "
+        description=doc.split("\n\n")[0],
+        epilog=f"Example, after ./scripts/demo.sh: benchmarks/{script} out/map.geojson "
                "out/paper_4_4_corridor_corner.truth.geojson")
     parser.add_argument("files", nargs="+", metavar="MAP TRUTH", help="pairs of a map and its truth (GeoJSON)")
     args = parser.parse_args(argv)
     if len(args.files) % 2:
         parser.error("expected pairs MAP TRUTH: got an odd number of files")
+    return args.files
+
+
+def main(argv=None):
+    pairs = trajectory_pairs(pair_files(argv, __doc__, "map_rotation.py"), "map_rotation.py")
+    if pairs is None:
+        return 2
     fmt = lambda v: "  –  " if v is None else f"{v:.3f}"  # noqa: E731
     print(f"{'map':40s} {'turn':>7s}  {'LoS':>13s}  {'hidden':>13s}  {'trajectory':>13s}")
     print(f"{'':40s} {'deg':>7s}  {'as is  turned':>13s}  {'as is  turned':>13s}  {'as is  turned':>13s}")
     rows = []
-    for map_path, truth_path in zip(args.files[::2], args.files[1::2]):
-        try:
-            ours = evaluation.load_map(map_path, f"map {map_path}")
-            truth = evaluation.load_map(truth_path, f"truth {truth_path}")
-        except evaluation.MapFormatError as error:
-            print(f"map_rotation.py: {error}", file=sys.stderr)
-            return 2
-        if ours.trajectory is None or truth.trajectory is None or len(ours.trajectory) != len(truth.trajectory):
-            print(f"{map_path}: the map and the truth need trajectories of the same length", file=sys.stderr)
-            return 2
+    for map_path, truth_path, ours, truth in pairs:
         pivot = truth.trajectory[0]
         angle = best_rotation(ours.trajectory, truth.trajectory, pivot)
         with open(map_path) as f:

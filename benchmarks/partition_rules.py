@@ -106,17 +106,9 @@ def drawn(lines, ratio_limit, rule, merge_m):
         if not len(points):
             continue
         t = (points - np.array(line["centre"])) @ np.array(line["direction"])
-        order = np.argsort(t)
-        groups = [[order[0]]]
-        for i in order[1:]:
-            if t[i] - t[groups[-1][-1]] <= merge_m:
-                groups[-1].append(i)
-            else:
-                groups.append([i])
-        for members in groups:
+        for members in WallFusion.dip_groups(t, merge_m):
             if rule(ratio[members], deep[members], corner[members]):
-                weights = np.maximum(ratio_limit - ratio[members], 1e-6)
-                out.append(np.average(points[members], axis=0, weights=weights))
+                out.append(WallFusion.dip_place(points[members], ratio[members], ratio_limit))
     return out
 
 

@@ -765,6 +765,62 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertEqual(len(both), 2, both)
         self.assertTrue(8.0 < both[1].start_m[0] < 8.2, both)
 
+    def test_final_adjustment_keeps_the_scale_only_where_a_wall_across_is_ranged(self):
+        """The adjustment with the walls' carrier phase (_phase_poses) holds the odometry's
+        scale where the mapping rounds put it (0.985 here) when the axial landmarks gave at
+        least PHASE_POSES_SCALE_MIN_AXIAL_RANGES ranges, and at 1, the wheels' own distance,
+        when they gave fewer or there is none; None keeps the rounds' scale always. The
+        rounds' own fit is left as it was."""
+        fusion = WallFusion(RADAR, exact_settings(correct_poses=False))
+        held = []
+
+        def stand_in(det, odometry, poses, state, wall_cls, axial, scale_at=None, **_):
+            held.append(scale_at)
+            fusion._odometry_fit = {"odometry_scale": scale_at, "adjustment_phase_steps": 10}
+            return poses
+
+        fusion._adjust_poses = stand_in
+        poses = straight_poses(0.0, 5.0)
+
+        def scale_with(ranges, **changes):
+            for name, value in changes.items():
+                setattr(fusion, name, value)
+            rounds = {"odometry_scale": 0.985, "adjustment_phase_steps": 0}
+            fusion._odometry_fit = dict(rounds)
+            axial = [{"sign": -1.0, "ranges": [(g, 3.0 + 0.2 * g) for g in range(n)], "position_m": -3.0, "rate": 1.0}
+                     for n in ranges]
+            self.assertIs(fusion._phase_poses({}, poses, poses, {}, [], axial), poses)
+            self.assertEqual(fusion._odometry_fit, rounds)
+            self.assertEqual(fusion._phase_fit["odometry_scale"], held[-1])
+            return held[-1]
+
+        self.assertEqual(WallFusion.PHASE_POSES_SCALE_MIN_AXIAL_RANGES, 25)
+        self.assertEqual(scale_with([30]), 0.985)
+        self.assertEqual(scale_with([15, 10]), 0.985)  # both ends' ranges count
+        self.assertEqual(scale_with([24]), 1.0)
+        self.assertEqual(scale_with([]), 1.0)
+        self.assertEqual(scale_with([], PHASE_POSES_SCALE_MIN_AXIAL_RANGES=None), 0.985)
+
+    def test_dip_runs_and_their_place(self):
+        """The dips along a line come in runs of neighbours within the merge distance, in
+        order, whatever order they are given in: poses 0.2 m apart at 3.8, 4.0 and 4.2 m are
+        one run with 0.25 m, and a dip 0.3 m further on starts another. A run's partition lies
+        at its mean, pulled toward its deepest dip when weighted (never past it), the same for
+        positions along the line and for world points."""
+        ts = np.array([4.2, 8.0, 3.8, 4.0, 8.5])
+        self.assertEqual(WallFusion.dip_groups(ts, 0.25), [[2, 3, 0], [1], [4]])
+        self.assertEqual(WallFusion.dip_groups(ts, 0.5), [[2, 3, 0], [1, 4]])
+        self.assertEqual(WallFusion.dip_groups(np.array([]), 0.25), [])
+        run = np.array([3.8, 4.0, 4.2])
+        ratio = np.array([0.38, 0.1, 0.35])
+        self.assertAlmostEqual(WallFusion.dip_place(run, ratio), 4.0, delta=1e-12)
+        weighted = WallFusion.dip_place(run, np.array([0.38, 0.35, 0.1]), 0.4)
+        # nearer the deep pose at 4.2 m than the plain mean (4.0 m) is
+        self.assertTrue(4.1 < weighted < 4.2, weighted)
+        points = np.column_stack([run, np.full(3, -3.0)])
+        placed = WallFusion.dip_place(points, np.array([0.38, 0.35, 0.1]), 0.4)
+        np.testing.assert_allclose(placed, [weighted, -3.0], atol=1e-12)
+
     def test_gap_between_pieces_of_one_wall_is_inferred(self):
         """A corridor wall whose echoes are missing for 2 m (x = 2 .. 4) is drawn across the
         gap as an inferred line-of-sight wall, from one piece's end to the other's, on the wall's

@@ -2819,15 +2819,29 @@ class WallFusion:
     #: steps, 0.035 m with the walls along the track only)
     PHASE_POSES_SIGMA_M = 0.003
     PHASE_POSES_MAX_TILT_DEG = 5.0
+    #: ...and the odometry's scale held there at the rounds' estimate only where the axial
+    #: landmarks (_axial_landmarks) gave at least this many ranges, at 1 (the wheels' own
+    #: distance) where they gave fewer (None: the rounds' estimate always). With fewer than
+    #: 25 the rounds' scale, pulled by point landmarks and a few ranges, was further off than
+    #: the wheels on 6 of the 7 office surveys where it was estimated, 2.6-3.1 % on two (the
+    #: trajectories 0.30 and 0.38 m); with 25 or more it was nearer on 10 of 12 (docs/mapping.md,
+    #: "The trajectories' error is along the track")
+    PHASE_POSES_SCALE_MIN_AXIAL_RANGES = 25
 
     def _phase_poses(self, det, odometry, poses, state, wall_cls, axial):
         """The poses of one more adjustment from `poses` (_adjust_poses), with the walls'
         carrier phase (PHASE_POSES_SIGMA_M, PHASE_POSES_MAX_TILT_DEG) and the odometry's
         scale held where the last round put it (the phase measures the heading, not the
-        distance travelled). The round's own fit (stats) is left as it was. None where no
-        wall gives phase steps."""
+        distance travelled), or at 1 where the axial landmarks gave fewer than
+        PHASE_POSES_SCALE_MIN_AXIAL_RANGES ranges: without a wall across the track ranged
+        often enough, what sets the rounds' scale (point landmarks on JADE's delays, a few
+        ranges) is no better than the wheels. The round's own fit (stats) is left as it was.
+        None where no wall gives phase steps."""
         rounds_fit = self._odometry_fit
         scale = float(rounds_fit["odometry_scale"]) if rounds_fit else 1.0
+        if self.PHASE_POSES_SCALE_MIN_AXIAL_RANGES is not None and \
+                sum(len(a["ranges"]) for a in axial) < self.PHASE_POSES_SCALE_MIN_AXIAL_RANGES:
+            scale = 1.0
         adjusted = self._adjust_poses(det, odometry, poses, state, wall_cls, axial, scale_at=scale,
                                       phase_sigma_m=self.PHASE_POSES_SIGMA_M,
                                       phase_max_tilt_deg=self.PHASE_POSES_MAX_TILT_DEG)
@@ -2885,6 +2899,7 @@ class WallFusion:
         if self._phase_fit:
             result.stats["phase_poses_drift_deg_per_m"] = self._phase_fit["odometry_drift_deg_per_m"]
             result.stats["phase_poses_steps"] = self._phase_fit["adjustment_phase_steps"]
+            result.stats["phase_poses_scale"] = self._phase_fit["odometry_scale"]
             result.stats["phase_poses_moved_m"] = float(np.max(np.hypot(*(new[:, :2] - old[:, :2]).T)))
 
     def _sequential_poses(self, det, odometry, shifts, ghosts):
@@ -4123,6 +4138,32 @@ class WallFusion:
     #: wall in front of it (its thickness is not measured: a plasterboard wall's)
     PARTITION_BEHIND_FACE_M = 0.15
 
+    @staticmethod
+    def dip_groups(ts, merge_m):
+        """The dips at `ts` (m along a line) in runs, each a list of indices into ts in order
+        along the line: a dip within merge_m of the run's last joins it (_partitions;
+        benchmarks/partition_rules.py scores its rules with the same runs)."""
+        order = np.argsort(np.asarray(ts, float))
+        groups = []
+        for i in order:
+            if groups and ts[i] - ts[groups[-1][-1]] <= merge_m:
+                groups[-1].append(int(i))
+            else:
+                groups.append([int(i)])
+        return groups
+
+    @staticmethod
+    def dip_place(ts, ratio, weight_limit=None):
+        """Where a run of dips (at `ts`, with their ratios) puts its partition: their mean,
+        weighted by how far each lies under weight_limit (None: unweighted). The deeper a
+        pose's dip, the nearer its legs run along the partition: the shoulders beside a deep
+        dip pulled the plain mean 0.2 m off it on three office maps. Works on arrays of
+        positions too (m along the line, or (n, 2) points)."""
+        ts = np.asarray(ts, float)
+        weights = None if weight_limit is None else np.maximum(weight_limit - np.asarray(ratio, float), 1e-6)
+        placed = np.average(ts, axis=0, weights=weights)
+        return float(placed) if placed.ndim == 0 else placed
+
     def _partitions(self, walls, dips, poses):
         """Partitions between the rooms behind a wall ([MapWall], [MapCorner]): from each dip
         (_partition_dips) of a hidden line, a hidden wall along the line's normal to the
@@ -4145,19 +4186,9 @@ class WallFusion:
             if found.shape[0] == 0:
                 continue
             ts = (found - line["centre"]) @ line["direction"]
-            order = np.argsort(ts)
-            groups_t = [[order[0]]]
-            for i in order[1:]:
-                if ts[i] - ts[groups_t[-1][-1]] <= self.PARTITION_MERGE_M:
-                    groups_t[-1].append(i)
-                else:
-                    groups_t.append([i])
             weight_limit = self.PARTITION_GAIN_RATIO if self.PARTITION_DRAW_RATIO is None else self.PARTITION_DRAW_RATIO
-            for members in groups_t:
-                # (the deeper a pose's dip, the nearer its legs run along the partition: the
-                # shoulders beside a deep dip pulled the mean 0.2 m off it on three maps)
-                weights = np.maximum(weight_limit - ratio[members], 1e-6) if self.PARTITION_DEPTH_WEIGHTED else None
-                t_dip = float(np.average(ts[members], weights=weights))
+            for members in self.dip_groups(ts, self.PARTITION_MERGE_M):
+                t_dip = self.dip_place(ts[members], ratio[members], weight_limit if self.PARTITION_DEPTH_WEIGHTED else None)
                 if self.PARTITION_CORE_RATIO is not None and not np.any(ratio[members] < self.PARTITION_CORE_RATIO):
                     continue
                 if len(members) < self.PARTITION_MIN_DIPS and not (
