@@ -250,39 +250,6 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertEqual(end_walls("edge", at_landmark=False), [])
         self.assertEqual(end_walls("edge", level=2.0), [])
 
-    def test_end_wall_at_a_near_axial_landmark(self):
-        """The corridor of test_end_wall_at_an_axial_landmark with its landmark 2.0 m behind
-        the first pose, within the wide search's reach (1 m / tan 25° = 2.1 m). The stand-in's
-        scores peak at the nearest hypotheses (the side walls' near-field leftovers) and again
-        at 2.2 m: the wide search's best is its near edge, and it takes nothing. With
-        END_WALL_LANDMARK_ALWAYS the hypotheses are those within 0.5 m of the landmark, and
-        the wall is found at 2.2 m."""
-        poses = straight_poses(0.0, 10.0)
-
-        def wall(y):
-            return {"centre": np.array([5.0, y]), "normal": np.array([0.0, -np.sign(y)]),
-                    "direction": np.array([1.0, 0.0]), "t0": -5.0, "t1": 5.0}
-
-        class Scores:
-            def end_wall_scores(self, origin, u, distances, groups, side_walls):
-                if u[0] > 0:
-                    return np.zeros(distances.size), np.ones(distances.size)
-                near = 60.0 * np.exp(-((distances - 0.4) / 0.3) ** 2)
-                return near + 20.0 * np.maximum(2.0 - 4.0 * np.abs(distances - 2.2), 0.5), np.ones(distances.size)
-
-        def end_walls(always):
-            fusion = WallFusion(RADAR, exact_settings())
-            fusion.END_WALL_LANDMARK_ALWAYS = always
-            fusion.refiner = Scores()
-            fusion._refiner_map = lambda *args: None
-            axial = [{"sign": -1.0, "ranges": [(g, 2.0 + poses[g, 0]) for g in range(0, 20, 2)]}]
-            return fusion._end_walls({"walls": [wall(-1.0), wall(1.0)]}, poses, [LOS, LOS], axial)
-
-        self.assertEqual(end_walls(False), [])
-        (found,) = end_walls(True)
-        robot_x = float(bistatic.robot_to_world(WallFusion(RADAR, exact_settings()).robot_c, poses[0])[0])
-        self.assertAlmostEqual(float(found["centre"][0]), robot_x - 2.2, delta=0.01)
-
     def test_end_wall_searched_again_with_the_side_walls(self):
         """The same corridor with only its south wall mapped from echoes (the north one, as
         where JADE does not report it, found later on the CSI): a dead end needs a wall on

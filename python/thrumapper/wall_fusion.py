@@ -820,10 +820,6 @@ class WallFusion:
     #: where the scores near a landmark peak at an edge of that window, the end wall is drawn
     #: at the landmark's range instead of not at all
     END_WALL_AT_LANDMARK = True
-    #: ...and that window searched wherever an axial landmark lies beyond the end, not only
-    #: past the wide search's reach (END_WALL_MIN_BEARING_DEG): office end walls 17 -> 20 of
-    #: 24 maps (docs/mapping.md, "The end walls searched again with the side walls")
-    END_WALL_LANDMARK_ALWAYS = True
     #: an end of the track with no end wall, beyond which an axial landmark lies, is searched
     #: again once the side walls are found on the CSI (_side_walls), with them as side walls:
     #: a dead end needs a wall on each side, and where JADE did not report one corridor wall
@@ -2252,11 +2248,7 @@ class WallFusion:
             far_m = max(offsets) / math.tan(math.radians(self.END_WALL_MIN_BEARING_DEG))
             distances = np.arange(self.END_WALL_MIN_M, far_m + 1e-9, self.END_WALL_STEP_M)
             landmark = self._axial_distance(axial, sign, poses, end)
-            # (a landmark within the wide search's reach is used too when END_WALL_LANDMARK_ALWAYS:
-            # there the nearest hypotheses take the side walls' near-field leftovers and peak at
-            # the search's near edge, office_floor seed 9's west end at 2.9 m)
-            near_landmark = landmark is not None and (landmark > far_m or (
-                self.END_WALL_LANDMARK_ALWAYS and landmark - self.AXIAL_END_WINDOW_M >= self.END_WALL_MIN_M))
+            near_landmark = landmark is not None and landmark > far_m
             if near_landmark:
                 distances = np.arange(landmark - self.AXIAL_END_WINDOW_M, landmark + self.AXIAL_END_WINDOW_M + 1e-9,
                                       self.END_WALL_STEP_M)
