@@ -83,6 +83,12 @@ class qa_wall_fusion(gr_unittest.TestCase):
         closing, _ = fusion._rooms_closed_at_end_walls([hidden([0.0, 3.0], [6.2, 3.0])], [end_wall], [south, north])
         np.testing.assert_allclose(closing[0].start_m, [6.5, 1.3], atol=1e-9)
         np.testing.assert_allclose(closing[0].end_m, [6.5, 3.0], atol=1e-9)
+        # ...also where the north wall is a side wall found on the CSI: the end wall's corner
+        # names it past the mapped walls (len(walls_in) + 0)
+        closing, _ = fusion._rooms_closed_at_end_walls([hidden([0.0, 3.0], [6.2, 3.0])], [end_wall], [south],
+                                                       side_walls=[north])
+        np.testing.assert_allclose(closing[0].start_m, [6.5, 1.3], atol=1e-9)
+        np.testing.assert_allclose(closing[0].end_m, [6.5, 3.0], atol=1e-9)
         south_only = dict(end_wall, corners=end_wall["corners"][:1])
         for far in ([hidden([0.0, -2.3], [5.7, -2.3])],                    # ends 0.8 m short
                     [hidden([0.0, -4.5], [6.2, -2.3])],                    # 20° off the side wall
@@ -243,6 +249,45 @@ class qa_wall_fusion(gr_unittest.TestCase):
             self.assertAlmostEqual(found["t1"] - found["t0"], 2.0, delta=1e-6)  # from side wall to side wall
         self.assertEqual(end_walls("edge", at_landmark=False), [])
         self.assertEqual(end_walls("edge", level=2.0), [])
+
+    def test_end_wall_searched_again_with_the_side_walls(self):
+        """The same corridor with only its south wall mapped from echoes (the north one, as
+        where JADE does not report it, found later on the CSI): a dead end needs a wall on
+        each side, so the first search finds no end wall. Given the north wall as a side wall
+        found on the CSI (extra_sides) and asked for the first pose's end only, it finds the
+        end wall from side wall to side wall, its corners on both: the north one named
+        len(walls) + 0, past the mapped walls. The found wall says which end it lies beyond."""
+        poses = straight_poses(0.0, 10.0)
+
+        def wall(y):
+            return {"centre": np.array([5.0, y]), "normal": np.array([0.0, -np.sign(y)]),
+                    "direction": np.array([1.0, 0.0]), "t0": -5.0, "t1": 5.0}
+
+        class Scores:
+            calls = []
+
+            def end_wall_scores(self, origin, u, distances, groups, side_walls):
+                self.calls.append((float(u[0]), len(side_walls)))
+                return 20.0 * (2.0 - np.abs(distances - 3.2)), np.ones(distances.size)
+
+        fusion = WallFusion(RADAR, exact_settings())
+        fusion.refiner = Scores()
+        fusion._refiner_map = lambda *args: None
+        state = {"walls": [wall(-1.0)]}
+        axial = [{"sign": -1.0, "ranges": [(g, 3.0 + poses[g, 0]) for g in range(0, 20, 2)]}]
+        self.assertEqual(fusion._end_walls(state, poses, [LOS], axial), [])
+        self.assertEqual(Scores.calls, [])  # neither end has a wall on both sides
+        (found,) = fusion._end_walls(state, poses, [LOS], axial, extra_sides=[wall(1.0)], only_ends=[0])
+        self.assertEqual(Scores.calls, [(-1.0, 2)])  # the far end is not searched
+        robot_x = float(bistatic.robot_to_world(fusion.robot_c, poses[0])[0])
+        self.assertAlmostEqual(float(found["centre"][0]), robot_x - 3.2, delta=0.01)
+        self.assertAlmostEqual(found["t1"] - found["t0"], 2.0, delta=1e-6)
+        self.assertEqual(found["end"], 0)
+        self.assertEqual(sorted(k for _, k in found["corners"]), [0, 1])
+        north = next(p for p, k in found["corners"] if k == 1)
+        self.assertAlmostEqual(float(north[1]), 1.0, delta=1e-9)
+        # a hidden wall is no side wall, even given as the only mapped one
+        self.assertEqual(fusion._end_walls(state, poses, [HIDDEN], axial, extra_sides=[wall(1.0)]), [])
 
     def test_misfitted_continuation_of_an_oblique_wall_is_not_behind_it(self):
         """The class rule hides a line-of-sight wall whose echoes cross the extension of
