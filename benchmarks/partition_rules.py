@@ -81,15 +81,12 @@ def dips_of(fusion, limit):
         out = WallFusion._partition_dips(fusion, state, poses, wall_cls, limit)
         asked = fusion.PARTITION_GAIN_RATIO if ratio_limit is None else ratio_limit
         kept.clear()
-        handed = []
         for line, points, deep, ratio in out:
             t = (points - line["centre"]) @ line["direction"]
             kept.append({"points": points.tolist(), "ratio": ratio.tolist(), "deep": deep.tolist(),
                          "corner": [bool(fusion._corner_at(line, float(tq), poses)) for tq in t],
                          "centre": line["centre"].tolist(), "direction": line["direction"].tolist()})
-            under = ratio < asked
-            handed.append((line, points[under], deep[under], ratio[under]))
-        return handed
+        return WallFusion._dips_under(out, asked)
 
     fusion._partition_dips = wrapped
     return kept

@@ -2207,9 +2207,10 @@ class WallFusion:
         Returns dicts: centre, normal, direction, t0, t1 (world), corners [(position (2,),
         side wall index: of state["walls"], or len(state["walls"]) + j for extra_sides[j])],
         poses, confidence (0.5 at END_WALL_SIGNIFICANCE times what white noise would explain,
-        toward 0.9 as it stands out further), end (the index of the pose it lies beyond). extra_sides: more walls that may be a side
-        wall (wall dicts: the side walls found on the CSI, _side_walls); only_ends: the ends to
-        search (0, the first pose, and len(poses) - 1, the last; None: both).
+        toward 0.9 as it stands out further), end (the index of the pose it lies beyond).
+        extra_sides: more walls that may be a side wall (wall dicts: the side walls found on
+        the CSI, _side_walls); only_ends: the ends to search (0, the first pose, and
+        len(poses) - 1, the last; None: both).
 
         Where an axial landmark (_axial_landmarks: a wall across the track ranged on every
         pose's CSI, `axial`) lies beyond an end, that end's hypotheses are the distances
@@ -2789,8 +2790,8 @@ class WallFusion:
             behind = self._behind_side_walls(state["walls"], wall_cls, state, poses, side_walls)
             wall_cls = [HIDDEN if k in behind else c for k, c in enumerate(wall_cls)]
         if side_walls and self.END_WALLS_AFTER_SIDE_WALLS and self._fits_on_csi:
-            beyond = sorted({0 if a["sign"] < 0 else len(poses) - 1 for a in axial})
-            missing = [end for end in beyond if end not in {e["end"] for e in end_walls}]
+            beyond = {0 if a["sign"] < 0 else len(poses) - 1 for a in axial}
+            missing = sorted(beyond - {e["end"] for e in end_walls})
             if missing:
                 end_walls = end_walls + self._timed("end walls", self._end_walls, state, poses, wall_cls, axial,
                                                     side_walls, missing)
@@ -3510,16 +3511,14 @@ class WallFusion:
         for n_end, end_wall in enumerate(end_walls):
             for position, k in end_wall["corners"]:
                 corners = [c for c in corners if np.hypot(*(c.position_m - position)) > 2.0 * s.corner_wall_distance_m]
+                w = self._corner_side(k, walls_in, side_walls)
+                t = float((position - w["centre"]) @ w["direction"])
                 named = k
                 if k < len(walls_in):
-                    w = walls_in[k]
-                    t = float((position - w["centre"]) @ w["direction"])
                     ends[k][0] = min(ends[k][0], t)
                     ends[k][1] = max(ends[k][1], t)
                 else:
                     j = k - len(walls_in)
-                    w = side_walls[j]
-                    t = float((position - w["centre"]) @ w["direction"])
                     side_walls[j] = dict(w, t0=min(w["t0"], t), t1=max(w["t1"], t))
                     named = len(walls_in) + len(end_walls) + j
                 corners.append(MapCorner(np.asarray(position, float), end_wall["confidence"], CLASSES[LOS],
@@ -4704,6 +4703,12 @@ class WallFusion:
                                              (len(walls) + len(added) - 1, a)))
         return added, corners
 
+    @staticmethod
+    def _corner_side(k, walls_in, side_walls):
+        """The side wall (wall dict) an end wall's corner names by index k (_end_walls):
+        walls_in[k], or past them side_walls[k - len(walls_in)], found on the CSI."""
+        return walls_in[k] if k < len(walls_in) else side_walls[k - len(walls_in)]
+
     def _rooms_closed_at_end_walls(self, walls, end_walls, walls_in, side_walls=()):
         """Inferred walls where a room behind a side wall closes at the corridor's end wall:
         the end wall (found on the CSI, _end_walls) goes on past its corner with the side
@@ -4723,7 +4728,7 @@ class WallFusion:
             confidence_e = e["confidence"]
             toward_track = e["normal"]  # from the end wall's face back along the track
             for corner, k in e["corners"]:
-                side = walls_in[k] if k < len(walls_in) else side_walls[k - len(walls_in)]
+                side = self._corner_side(k, walls_in, side_walls)
                 beyond = None  # the hidden wall nearest behind this side wall that ends on the line
                 for h in hidden:
                     d_h = (h.end_m - h.start_m) / max(h.length_m, 1e-12)
