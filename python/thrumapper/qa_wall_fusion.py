@@ -289,6 +289,67 @@ class qa_wall_fusion(gr_unittest.TestCase):
         # a hidden wall is no side wall, even given as the only mapped one
         self.assertEqual(fusion._end_walls(state, poses, [HIDDEN], axial, extra_sides=[wall(1.0)]), [])
 
+    def test_end_wall_mapped_from_echoes_is_not_searched_again(self):
+        """The corridor of test_end_wall_at_an_axial_landmark, with a line-of-sight wall
+        across it already mapped from echoes 3.0 m behind the first pose, over part of the
+        corridor's width (y = -1.0 to 0.2). A stand-in refiner's scores peak 0.26 m behind
+        it: the search alone draws a second wall there (END_WALL_ON_MAPPED off). With it on,
+        the mapped wall is the end wall: on its line, from side wall to side wall (its
+        corners on both), not searched for on the CSI. A wall across beyond the search's
+        reach, or off the track's axis, is not taken."""
+        poses = straight_poses(0.0, 10.0)
+        robot_x = float(bistatic.robot_to_world(WallFusion(RADAR, exact_settings()).robot_c, poses[0])[0])
+
+        def wall(y):
+            return {"centre": np.array([5.0, y]), "normal": np.array([0.0, -np.sign(y)]),
+                    "direction": np.array([1.0, 0.0]), "t0": -5.0, "t1": 5.0, "members": np.arange(0)}
+
+        def across(x, y0, y1):
+            return {"centre": np.array([x, 0.5 * (y0 + y1)]), "normal": np.array([1.0, 0.0]),
+                    "direction": np.array([0.0, 1.0]), "t0": -0.5 * (y1 - y0), "t1": 0.5 * (y1 - y0),
+                    "members": np.arange(10)}
+
+        class Scores:
+            calls = 0
+
+            def end_wall_scores(self, origin, u, distances, groups, side_walls):
+                if u[0] > 0:
+                    return np.zeros(distances.size), np.ones(distances.size)
+                Scores.calls += 1
+                return 20.0 * (2.0 - np.abs(distances - 3.26)), np.ones(distances.size)
+
+        def end_walls(on_mapped, across_wall):
+            fusion = WallFusion(RADAR, exact_settings())
+            fusion.END_WALL_ON_MAPPED = on_mapped
+            fusion.refiner = Scores()
+            fusion._refiner_map = lambda *args: None
+            state = {"walls": [wall(-1.0), wall(1.0), across_wall], "group": np.arange(len(poses))}
+            axial = [{"sign": -1.0, "ranges": [(g, 3.0 + poses[g, 0]) for g in range(0, 20, 2)]}]
+            return fusion._end_walls(state, poses, [LOS, LOS, LOS], axial)
+
+        mapped_wall = across(robot_x - 3.0, -1.0, 0.2)
+        (searched,) = end_walls(False, mapped_wall)
+        self.assertAlmostEqual(float(searched["centre"][0]), robot_x - 3.26, delta=0.01)
+        self.assertIsNone(searched["mapped"])
+        Scores.calls = 0
+        (found,) = end_walls(True, mapped_wall)
+        self.assertEqual(Scores.calls, 0)  # not searched for
+        self.assertEqual(found["mapped"], 2)
+        self.assertEqual(found["end"], 0)
+        self.assertAlmostEqual(float(found["centre"][0]), robot_x - 3.0, delta=1e-9)
+        self.assertGreater(float(found["normal"][0]), 0.99)  # facing the track
+        self.assertAlmostEqual(found["t1"] - found["t0"], 2.0, delta=1e-6)
+        self.assertEqual(sorted(k for _, k in found["corners"]), [0, 1])
+        for position, k in found["corners"]:
+            self.assertAlmostEqual(float(position[0]), robot_x - 3.0, delta=1e-9)
+            self.assertAlmostEqual(float(position[1]), [-1.0, 1.0][k], delta=1e-9)
+        # beyond the landmark's window (3.0 + 0.5 m, and the window's margin), or beside
+        # the axis by more than END_WALL_MAPPED_MARGIN_M: searched for as before
+        for elsewhere in (across(robot_x - 4.2, -1.0, 0.2), across(robot_x - 3.0, 0.6, 1.0)):
+            (searched,) = end_walls(True, elsewhere)
+            self.assertIsNone(searched["mapped"])
+            self.assertAlmostEqual(float(searched["centre"][0]), robot_x - 3.26, delta=0.01)
+
     def test_misfitted_continuation_of_an_oblique_wall_is_not_behind_it(self):
         """The class rule hides a line-of-sight wall whose echoes cross the extension of
         another (a corridor wall goes on past its echoes). A wall 18 degrees off the track,

@@ -820,6 +820,19 @@ class WallFusion:
     #: where the scores near a landmark peak at an edge of that window, the end wall is drawn
     #: at the landmark's range instead of not at all
     END_WALL_AT_LANDMARK = True
+    #: ...and that window searched wherever an axial landmark lies beyond the end, not only
+    #: past the wide search's reach (END_WALL_MIN_BEARING_DEG): within it the nearest
+    #: hypotheses take the side walls' near-field leftovers and the wide search peaks at its
+    #: near edge (office_floor seed 9's west end, 2.9 m behind the first pose)
+    END_WALL_LANDMARK_ALWAYS = True
+    #: where a line-of-sight wall mapped from echoes already stands across the track within
+    #: an end's search (its line within END_WALL_SIDE_ANGLE_DEG of square to the track,
+    #: crossing the track's axis on the wall or within this of its ends), that wall is the end
+    #: wall: it is not searched for on the CSI (the search drew a second wall beside it,
+    #: 0.2-0.6 m off on 9 office maps), and the mapped wall is drawn on to its corners with
+    #: the side walls, which are drawn on to it
+    END_WALL_ON_MAPPED = True
+    END_WALL_MAPPED_MARGIN_M = 0.5
     #: an end of the track with no end wall, beyond which an axial landmark lies, is searched
     #: again once the side walls are found on the CSI (_side_walls), with them as side walls:
     #: a dead end needs a wall on each side, and where JADE did not report one corridor wall
@@ -2207,8 +2220,10 @@ class WallFusion:
         Returns dicts: centre, normal, direction, t0, t1 (world), corners [(position (2,),
         side wall index: of state["walls"], or len(state["walls"]) + j for extra_sides[j])],
         poses, confidence (0.5 at END_WALL_SIGNIFICANCE times what white noise would explain,
-        toward 0.9 as it stands out further), end (the index of the pose it lies beyond).
-        extra_sides: more walls that may be a side wall (wall dicts: the side walls found on
+        toward 0.9 as it stands out further), end (the index of the pose it lies beyond),
+        and mapped (the index in state["walls"] of the line-of-sight wall mapped from echoes
+        that is the end wall, END_WALL_ON_MAPPED; on its line, not searched for; None for a
+        wall found on the CSI). extra_sides: more walls that may be a side wall (wall dicts: the side walls found on
         the CSI, _side_walls); only_ends: the ends to search (0, the first pose, and
         len(poses) - 1, the last; None: both).
 
@@ -2249,7 +2264,8 @@ class WallFusion:
             far_m = max(offsets) / math.tan(math.radians(self.END_WALL_MIN_BEARING_DEG))
             distances = np.arange(self.END_WALL_MIN_M, far_m + 1e-9, self.END_WALL_STEP_M)
             landmark = self._axial_distance(axial, sign, poses, end)
-            near_landmark = landmark is not None and landmark > far_m
+            near_landmark = landmark is not None and (landmark > far_m or (
+                self.END_WALL_LANDMARK_ALWAYS and landmark - self.AXIAL_END_WINDOW_M >= self.END_WALL_MIN_M))
             if near_landmark:
                 distances = np.arange(landmark - self.AXIAL_END_WINDOW_M, landmark + self.AXIAL_END_WINDOW_M + 1e-9,
                                       self.END_WALL_STEP_M)
@@ -2257,6 +2273,22 @@ class WallFusion:
                 continue
             along = (poses[:, :2] - origin) @ u
             groups = [g for g in range(len(poses)) if -self.END_WALL_REACH_M <= along[g] <= 0.5]
+            mapped = self._mapped_across(state["walls"], wall_cls, origin, u,
+                                         float(distances[-1]) + self.AXIAL_END_WINDOW_M) \
+                if self.END_WALL_ON_MAPPED else None
+            if mapped is not None:
+                w = state["walls"][mapped]
+                normal = w["normal"] if float(w["normal"] @ u) < 0.0 else -w["normal"]  # toward the track
+                point = origin + float((w["centre"] - origin) @ normal) / float(u @ normal) * u
+                corners = [(bistatic.lines_meet(candidates[k]["centre"], candidates[k]["normal"], point, normal), k)
+                           for k in sides]
+                direction = np.array([-normal[1], normal[0]])
+                ts = [float((c - point) @ direction) for c, _ in corners]
+                n_poses = int(np.unique(state["group"][w["members"]]).size)
+                found.append({"centre": point, "normal": normal, "direction": direction, "t0": min(ts),
+                              "t1": max(ts), "corners": corners, "poses": n_poses,
+                              "confidence": 0.9 * min(1.0, n_poses / 8.0), "end": end, "mapped": mapped})
+                continue
             side_walls = [candidates[k] for k in sides]
             scores, noise = self.refiner.end_wall_scores(origin, u, distances, groups, side_walls)
             best = int(np.argmax(scores))
@@ -2283,8 +2315,26 @@ class WallFusion:
             ratio = scores[best] / max(noise[best], 1e-300) / self.END_WALL_SIGNIFICANCE
             found.append({"centre": point, "normal": -u, "direction": lateral, "t0": min(ts), "t1": max(ts),
                           "corners": corners, "poses": len(groups), "confidence": float(0.9 - 0.4 / max(ratio, 1.0)),
-                          "end": end})
+                          "end": end, "mapped": None})
         return found
+
+    def _mapped_across(self, walls, wall_cls, origin, u, reach_m):
+        """The index of the nearest line-of-sight wall of `walls` standing across the track's
+        axis (from `origin`, direction `u`) between the origin and reach_m ahead (its normal
+        within END_WALL_SIDE_ANGLE_DEG of the axis, the axis meeting its line on the wall or
+        within END_WALL_MAPPED_MARGIN_M of its ends), None when there is none."""
+        cos_across = math.cos(math.radians(self.END_WALL_SIDE_ANGLE_DEG))
+        nearest = None
+        for k, (w, cls) in enumerate(zip(walls, wall_cls)):
+            facing = float(w["normal"] @ u)
+            if cls != LOS or abs(facing) < cos_across:
+                continue
+            d = float((w["centre"] - origin) @ w["normal"]) / facing
+            t = float((origin + d * u - w["centre"]) @ w["direction"])
+            if 0.0 < d <= reach_m and w["t0"] - self.END_WALL_MAPPED_MARGIN_M <= t <= w["t1"] + self.END_WALL_MAPPED_MARGIN_M \
+                    and (nearest is None or d < nearest[0]):
+                nearest = (d, k)
+        return None if nearest is None else nearest[1]
 
     def _axial_distance(self, axial, sign, poses, end):
         """How far beyond the track's end `end` (its last pose, sign +1, or first, -1) the
@@ -3506,9 +3556,38 @@ class WallFusion:
         # an end wall's corners replace the point-landmark corners near them, and extend
         # their side walls to them
         # (a corner on a side wall found on the CSI, index len(walls_in) + j, extends that
-        # side wall; the corners name it after the end walls, as the map orders them)
+        # side wall; the corners name it after the end walls, as the map orders them). The
+        # corners are where the end wall's line meets its side walls' lines now: the pieces
+        # put on a side wall's line and the materials' corrections moved them after the end
+        # walls were found (a corner left 0.9 m beyond a north corridor wall whose piece had
+        # been put on its line, office_floor seed 9). An end wall that is a wall mapped from
+        # echoes (END_WALL_ON_MAPPED) is not drawn again: its corners extend that wall
         side_walls = list(side_walls)
-        for n_end, end_wall in enumerate(end_walls):
+        all_end_walls = list(end_walls)
+        for n_all, end_wall in enumerate(all_end_walls):
+            mapped = end_wall.get("mapped")
+            line = end_wall if mapped is None else walls_in[mapped]
+            moved = []
+            for position, k in end_wall["corners"]:
+                side = self._corner_side(k, walls_in, side_walls)
+                try:
+                    position = bistatic.lines_meet(side["centre"], side["normal"], line["centre"], line["normal"])
+                except bistatic.GeometryError:
+                    pass
+                moved.append((position, k))
+            ts = [float((position - line["centre"]) @ line["direction"]) for position, _ in moved]
+            if mapped is None:
+                end_wall = dict(end_wall, corners=moved, t0=min(ts), t1=max(ts))
+            else:
+                ends[mapped][0] = min([ends[mapped][0]] + ts)
+                ends[mapped][1] = max([ends[mapped][1]] + ts)
+                end_wall = dict(end_wall, corners=moved)
+            all_end_walls[n_all] = end_wall
+        end_walls = [e for e in all_end_walls if e.get("mapped") is None]
+        for n_all, end_wall in enumerate(all_end_walls):
+            mapped = end_wall.get("mapped")
+            end_index = mapped if mapped is not None else \
+                len(walls_in) + sum(1 for e in all_end_walls[:n_all] if e.get("mapped") is None)
             for position, k in end_wall["corners"]:
                 corners = [c for c in corners if np.hypot(*(c.position_m - position)) > 2.0 * s.corner_wall_distance_m]
                 w = self._corner_side(k, walls_in, side_walls)
@@ -3522,7 +3601,7 @@ class WallFusion:
                     side_walls[j] = dict(w, t0=min(w["t0"], t), t1=max(w["t1"], t))
                     named = len(walls_in) + len(end_walls) + j
                 corners.append(MapCorner(np.asarray(position, float), end_wall["confidence"], CLASSES[LOS],
-                                         end_wall["poses"], (int(named), len(walls_in) + n_end)))
+                                         end_wall["poses"], (int(named), int(end_index))))
         walls = []
         detections = {c: [] for c in CLASSES}
         echoes = {c: [] for c in CLASSES}
@@ -3617,7 +3696,7 @@ class WallFusion:
                                      count, 0.0, source=source))
         for _, others in split_pieces:  # after everything the corners index
             walls.extend(others)
-        closing, room_corners = self._rooms_closed_at_end_walls(walls, end_walls, walls_in, side_walls)
+        closing, room_corners = self._rooms_closed_at_end_walls(walls, all_end_walls, walls_in, side_walls)
         walls.extend(closing)
         corners.extend(room_corners)
         closed, closing_corners = self._corridors_closed_at_walls_across(walls, poses)
@@ -3653,7 +3732,8 @@ class WallFusion:
                       "wall_echoes": int(np.count_nonzero(labels >= 0)),
                       "corner_echoes": int(np.count_nonzero(labels == CORNER)),
                       "unassigned_echoes": int(np.count_nonzero((labels == UNASSIGNED) & ~ghosts)),
-                      "end_walls": len(end_walls), "side_walls": len(side_walls), "openings": len(openings),
+                      "end_walls": len(end_walls), "end_walls_mapped_from_echoes": len(all_end_walls) - len(end_walls),
+                      "side_walls": len(side_walls), "openings": len(openings),
                       "corridor_walls_closed": len(closed), "partitions": len(partitions),
                       "hidden_walls_continued": len(continued), "walls_seen_through_openings": seen_through,
                       "detections_in_openings": in_openings, "walls_clipped_at_crossings": len(clipped),
