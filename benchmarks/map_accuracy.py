@@ -20,7 +20,15 @@ and after its rows a row of the medians and one of the ranges: the office maps m
 several centimetres between runs that differ in nothing that matters (docs/mapping.md), so
 one survey is one draw, and a change is worth keeping when it moves the medians.
 
-Usage: benchmarks/map_accuracy.py [--out DIR] [--scenes NAME ...] [--seeds N ...] [-- EXTRA thrumapper-map ARGS]
+With --set NAME=VALUE (repeatable) a WallFusion class constant is set for the run (VALUE
+read as JSON: true, 15.0, "text"), to measure the maps with one of the fusion's choices
+changed, as docs/mapping.md does, e.g.
+
+    benchmarks/map_accuracy.py --scenes office_floor office_floor_drift --seeds 1 2 3 \
+        --set END_WALL_ON_MAPPED=false --out out/map_accuracy_off
+
+Usage: benchmarks/map_accuracy.py [--out DIR] [--scenes NAME ...] [--seeds N ...] [--set NAME=VALUE ...]
+           [-- EXTRA thrumapper-map ARGS]
 """
 import argparse
 import contextlib
@@ -32,6 +40,7 @@ import sys
 import time
 
 from gnuradio.thrumapper import cli_map, cli_sim, evaluation
+from gnuradio.thrumapper.wall_fusion import WallFusion
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCENES_DIR = os.path.join(HERE, "..", "examples", "scenes")
@@ -127,7 +136,12 @@ def main(argv=None):
     parser.add_argument("--scenes", nargs="*", default=list(SCENES), help="scenes to run")
     parser.add_argument("--seeds", nargs="*", type=int, default=None,
                         help="simulate each scene with each of these seeds instead of its own (median and range rows)")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="set a WallFusion class constant for this run (VALUE as JSON: true, 15.0, \"text\")")
     args = parser.parse_args(argv)
+    for name, value in fusion_constants(parser, args.set).items():
+        setattr(WallFusion, name, value)
+        print(f"WallFusion.{name} = {value!r}")
     unknown = [n for n in args.scenes if n not in SCENES]
     if unknown:
         parser.error(f"unknown scenes {unknown}; known: {', '.join(SCENES)}")
@@ -140,6 +154,21 @@ def main(argv=None):
         rows += runs + summary_rows(name, runs)
     print_table(rows)
     return 0
+
+
+def fusion_constants(parser, settings):
+    """{name: value} of the --set NAME=VALUE options (parser.error on a malformed one or a
+    name that is not an upper-case WallFusion constant)."""
+    out = {}
+    for setting in settings:
+        name, sep, text = setting.partition("=")
+        if not sep or not name.isupper() or not hasattr(WallFusion, name):
+            parser.error(f"--set {setting}: expected NAME=VALUE with NAME a WallFusion constant (e.g. END_WALL_ON_MAPPED=false)")
+        try:
+            out[name] = json.loads(text)
+        except json.JSONDecodeError:
+            parser.error(f"--set {setting}: VALUE is not JSON (true, false, 15.0, \"text\")")
+    return out
 
 
 SUMMARISED = ("los_rms", "los_raw_rms", "hidden_rms", "hidden_raw_rms", "los_cov", "hidden_cov", "false_frac",
