@@ -1581,8 +1581,12 @@ class qa_wall_refinement(gr_unittest.TestCase):
         self.assertLess(abs(moved.stats["phase_poses_drift_deg_per_m"] - 1.0), 0.1, moved.stats)
         self.assertGreater(moved.stats["phase_poses_steps"], 50, moved.stats)  # both walls, most of 50 steps
         self.assertEqual(rounds.stats["adjustment_phase_steps"], 0, rounds.stats)
+        # (the two runs' rounds agree to a few 1e-9 °/m, not bit for bit: measured 2-4e-9 apart
+        # over repeated runs, with one BLAS thread and a fixed hash seed too: docs/mapping.md,
+        # "One survey, one map", the last bits are not fixed; the phase steps'
+        # drift is 0.14 °/m away)
         self.assertAlmostEqual(moved.stats["odometry_drift_deg_per_m"], rounds.stats["odometry_drift_deg_per_m"],
-                               delta=1e-9)
+                               delta=1e-6)
         # the map's decisions are the rounds': the same walls, classes and detections
         self.assertEqual([(w.cls, w.source) for w in moved.walls], [(w.cls, w.source) for w in rounds.walls])
         self.assertEqual({c: len(p) for c, p in moved.detections.items()},
