@@ -829,8 +829,8 @@ class WallFusion:
     #: an end's search (its line within END_WALL_SIDE_ANGLE_DEG of square to the track,
     #: crossing the track's axis on the wall or within this of its ends), that wall is the end
     #: wall: it is not searched for on the CSI (the search drew a second wall beside it,
-    #: 0.2-0.6 m off on 9 office maps), and the mapped wall is drawn on to its corners with
-    #: the side walls, which are drawn on to it
+    #: 0.2-0.6 m off, on six of the 24 office maps), and the mapped wall is drawn on to its
+    #: corners with the side walls, which are drawn on to it
     END_WALL_ON_MAPPED = True
     END_WALL_MAPPED_MARGIN_M = 0.5
     #: an end of the track with no end wall, beyond which an axial landmark lies, is searched
@@ -2222,10 +2222,10 @@ class WallFusion:
         poses, confidence (0.5 at END_WALL_SIGNIFICANCE times what white noise would explain,
         toward 0.9 as it stands out further), end (the index of the pose it lies beyond),
         and mapped (the index in state["walls"] of the line-of-sight wall mapped from echoes
-        that is the end wall, END_WALL_ON_MAPPED; on its line, not searched for; None for a
-        wall found on the CSI). extra_sides: more walls that may be a side wall (wall dicts: the side walls found on
-        the CSI, _side_walls); only_ends: the ends to search (0, the first pose, and
-        len(poses) - 1, the last; None: both).
+        that is the end wall, END_WALL_ON_MAPPED: on its line, not searched for; None for a
+        wall found on the CSI). extra_sides: more walls that may be a side wall (wall dicts:
+        the side walls found on the CSI, _side_walls); only_ends: the ends to search (0, the
+        first pose, and len(poses) - 1, the last; None: both).
 
         Where an axial landmark (_axial_landmarks: a wall across the track ranged on every
         pose's CSI, `axial`) lies beyond an end, that end's hypotheses are the distances
