@@ -77,8 +77,8 @@ def dips_of(fusion, limit):
     line), while handing the fusion the dips it asked for."""
     kept = []
 
-    def wrapped(state, poses, wall_cls, ratio_limit=None):
-        out = WallFusion._partition_dips(fusion, state, poses, wall_cls, limit)
+    def wrapped(state, poses, wall_cls, ratio_limit=None, continued_spans=None):
+        out = WallFusion._partition_dips(fusion, state, poses, wall_cls, limit, continued_spans)
         asked = fusion.PARTITION_GAIN_RATIO if ratio_limit is None else ratio_limit
         kept.clear()
         for line, points, deep, ratio in out:

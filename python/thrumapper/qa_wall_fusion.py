@@ -350,6 +350,54 @@ class qa_wall_fusion(gr_unittest.TestCase):
             self.assertIsNone(searched["mapped"])
             self.assertAlmostEqual(float(searched["centre"][0]), robot_x - 3.26, delta=0.01)
 
+    def test_partition_at_the_track_end_on_a_wall_drawn_on(self):
+        """A room's back wall (y = -4.65) mapped from echoes from x = 4 to 10 only, drawn on
+        past its echoes to the track's start at x = 0 (_hidden_walls_continued's stretch). A
+        stand-in gives the back wall's echo gain ratio along it: 1 but at the first pose
+        (0.05: the partition closing the building grazes a leg of its echo) and at x = 2
+        (0.1, with shoulders of 0.5: interference on the stretch drawn on). Without the
+        stretch the dips are looked for on the pieces only (their hull, 0.5 m past them)
+        and neither is found; with it (PARTITION_ON_CONTINUED) the first pose's is, deep
+        (a partition on its own), and the one at x = 2, not at the track's end, is not, nor
+        on a stretch that stops short of the track's end. The pieces' own profile is still
+        made over their hull alone."""
+        poses = straight_poses(0.0, 10.0)
+        fusion = WallFusion(RADAR, exact_settings())
+        back = {"centre": np.array([7.0, -4.65]), "normal": np.array([0.0, 1.0]),
+                "direction": np.array([1.0, 0.0]), "t0": -3.0, "t1": 3.0, "members": np.arange(0)}
+        state = {"walls": [back]}
+        robot_x = fusion._robot_positions(poses)[:, 0]
+        hulls = []
+
+        def profile(line, pieces, poses_, hull, min_near, leak=True):
+            hulls.append(tuple(round(h, 6) for h in hull))
+            t = robot_x - line["centre"][0]
+            t = t[(t >= hull[0]) & (t <= hull[1])]
+            ratio = np.full(t.size, 0.9)
+            ratio[np.isclose(t + 7.0, robot_x[0])] = 0.05
+            at_2 = np.argmin(np.abs(t + 5.0))
+            if abs(t[at_2] + 5.0) < 0.11:
+                ratio[max(at_2 - 1, 0):at_2 + 2] = 0.5
+                ratio[at_2] = 0.1
+            return t, np.ones(t.size), ratio
+
+        fusion._gain_profile = profile
+        fusion._refiner_map = lambda *args: None
+        fusion.PARTITION_DIPS_ACROSS_DOUBLES = False
+        ((line, points, deep, ratio),) = fusion._partition_dips(state, poses, [HIDDEN], 0.3)
+        self.assertEqual(points.shape[0], 0)
+        self.assertEqual(hulls, [(-3.5, 3.5)])
+        hulls.clear()
+        stretch = {0: [(robot_x[0] - 7.0, -3.0)]}  # along the line, from the first pose to the pieces
+        ((line, points, deep, ratio),) = fusion._partition_dips(state, poses, [HIDDEN], 0.3, stretch)
+        self.assertEqual(hulls[0], (-3.5, 3.5))  # the pieces' profile as before
+        self.assertEqual(points.shape[0], 1, points)
+        self.assertAlmostEqual(float(points[0, 0]), robot_x[0], delta=1e-9)
+        self.assertTrue(deep[0])
+        self.assertAlmostEqual(float(ratio[0]), 0.05)
+        # a stretch drawn on from x = 1.5: its dip at x = 2 is not at the track's end
+        self.assertEqual(fusion._partition_dips(state, poses, [HIDDEN], 0.3, {0: [(-5.5, -3.0)]})[0][1].shape[0], 0)
+
     def test_misfitted_continuation_of_an_oblique_wall_is_not_behind_it(self):
         """The class rule hides a line-of-sight wall whose echoes cross the extension of
         another (a corridor wall goes on past its echoes). A wall 18 degrees off the track,

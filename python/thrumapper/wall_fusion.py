@@ -3708,8 +3708,13 @@ class WallFusion:
         # under PARTITION_GAIN_RATIO, the partitions drawn from those under PARTITION_DRAW_RATIO
         view_limit = self.PARTITION_GAIN_RATIO
         draw_limit = view_limit if self.PARTITION_DRAW_RATIO is None else self.PARTITION_DRAW_RATIO
+        continued = []
+        if self._fits_on_csi and s.continue_hidden_walls:  # (before the views through doors: seen, they are)
+            continued = self._timed("hidden walls continued", self._hidden_walls_continued, state, poses, wall_cls,
+                                    walls)
+        continued_spans = getattr(self, "_continued_spans", {}) if continued and self.PARTITION_ON_CONTINUED else None
         found_dips = self._timed("partition dips", self._partition_dips, state, poses, wall_cls,
-                                 max(view_limit, draw_limit)) if want_dips else []
+                                 max(view_limit, draw_limit), continued_spans) if want_dips else []
         dips, draw_dips = self._dips_under(found_dips, view_limit), self._dips_under(found_dips, draw_limit)
         partitions, partition_corners = [], []
         if self._fits_on_csi and s.partitions:  # (before the views through doors, which they bound)
@@ -3717,11 +3722,7 @@ class WallFusion:
             corners.extend(MapCorner(c.position_m, c.confidence, c.cls, c.num_poses, (len(walls) + n,))
                            for n, c in enumerate(partition_corners))
             walls.extend(partitions)
-        continued = []
-        if self._fits_on_csi and s.continue_hidden_walls:  # (before the views through doors: seen, they are)
-            continued = self._timed("hidden walls continued", self._hidden_walls_continued, state, poses, wall_cls,
-                                    walls)
-            walls.extend(continued)
+        walls.extend(continued)
         seen_through = self._seen_through_doorways(walls, corners, detections, echoes, openings, poses, dips)
         for cls in CLASSES:
             detections[cls] = np.array(detections[cls]).reshape(-1, 2)
@@ -4128,6 +4129,13 @@ class WallFusion:
     #: on the office surveys; a double bounce's 2.4 m image dips at its end too, qa_wall_refinement)
     PARTITION_LONE_LINE_M = 4.0
     PARTITION_LONE_DEEP = True
+    #: ...and looked for over the stretches where a hidden line is drawn on past its echoes
+    #: (_hidden_walls_continued), near the track's ends: a room's back wall whose echoes
+    #: stop short of the track's end is drawn on to it where the CSI holds its echo, and the
+    #: partition closing the building there shadows the end pose's echo (a leg grazes it)
+    PARTITION_ON_CONTINUED = True
+    #: ...there only within this of the track's ends along the line
+    PARTITION_TRACK_END_M = 0.5
 
     def _hidden_lines(self, walls_in, wall_cls):
         """[(pieces, longest, spans)]: _collinear_lines of walls_in's hidden walls, by their
@@ -4136,7 +4144,7 @@ class WallFusion:
         return [(tuple(hidden[i] for i in members), hidden[longest], spans)
                 for members, longest, spans in self._collinear_lines([walls_in[k] for k in hidden])]
 
-    def _partition_dips(self, state, poses, wall_cls, ratio_limit=None):
+    def _partition_dips(self, state, poses, wall_cls, ratio_limit=None, continued_spans=None):
         """[(line dict, (n, 2) world points, (n,) deep, (n,) ratio)]: on each line of hidden walls
         (_collinear_groups), the specular points where its echo all but vanishes, and whether
         each is deep enough to be a partition alone (PARTITION_DEEP_RATIO with its neighbours
@@ -4146,7 +4154,10 @@ class WallFusion:
         drops there, over one to three poses. So does it at the interference of two echoes,
         now and then: a dip bounds a view (_seen_through_doorways), where one too many errs
         toward the wall's own class. A dip is a ratio under ratio_limit (None:
-        PARTITION_GAIN_RATIO); its ratio comes with it."""
+        PARTITION_GAIN_RATIO); its ratio comes with it. continued_spans: {index of a line's
+        longest piece: [(t0, t1) along it]} where the line is drawn on past its echoes
+        (_hidden_walls_continued): its dips there are added within PARTITION_TRACK_END_M of
+        the track's ends (PARTITION_ON_CONTINUED)."""
         walls_in = state["walls"]
         limit = self.PARTITION_GAIN_RATIO if ratio_limit is None else ratio_limit
         lines = self._hidden_lines(walls_in, wall_cls)
@@ -4167,7 +4178,28 @@ class WallFusion:
             # rise on either side above it
             mapped_m = sum(walls_in[k]["t1"] - walls_in[k]["t0"] for k in pieces)
             deep = self._deep_dips(ratio, low, mapped_m)
-            out.append((line, line["centre"][None, :] + t[low, None] * line["direction"][None, :], deep, ratio[low]))
+            points = line["centre"][None, :] + t[low, None] * line["direction"][None, :]
+            ratios = ratio[low]
+            more = (continued_spans or {}).get(longest, ())
+            if more:
+                # past the pieces, over the stretches drawn on, only at the track's ends: the
+                # partition closing the building there shadows the end pose's echo, and no pose
+                # beyond shows the echo back (over the whole stretches, dips of interference
+                # and of other lines' ends made 11 false partitions of 26 on the 24 office
+                # maps). A profile of its own, so that the pieces' ratios stay as they were
+                # (their reference median would take in the stretches' poses)
+                wide = (min([hull[0]] + [a - self.PARTITION_BEYOND_M for a, _ in more]),
+                        max([hull[1]] + [b + self.PARTITION_BEYOND_M for _, b in more]))
+                t2, _, ratio2 = self._gain_profile(line, pieces, poses, wide, 5)
+                along = (self._robot_positions(poses) - line["centre"]) @ line["direction"]
+                ends = (float(along.min()), float(along.max()))
+                low2 = np.array([i for i in np.flatnonzero(ratio2 < limit) if not hull[0] <= t2[i] <= hull[1]
+                                 and min(abs(t2[i] - e) for e in ends) <= self.PARTITION_TRACK_END_M], int)
+                if low2.size:
+                    points = np.vstack([points, line["centre"][None, :] + t2[low2, None] * line["direction"][None, :]])
+                    deep = np.concatenate([deep, self._deep_dips(ratio2, low2, mapped_m)])
+                    ratios = np.concatenate([ratios, ratio2[low2]])
+            out.append((line, points, deep, ratios))
         if self.PARTITION_DIPS_ACROSS_DOUBLES:
             self._dips_across_doubles(out, lines, walls_in, poses, limit)
         return out
@@ -4373,6 +4405,7 @@ class WallFusion:
         walls_in = state["walls"]
         lines = [q for q in self._hidden_lines(walls_in, wall_cls)
                  if walls_in[q[1]]["t1"] - walls_in[q[1]]["t0"] >= self.CONTINUE_MIN_M]
+        self._continued_spans = {}  # {longest piece's index: [(t0, t1) along it]}, for _partition_dips
         if not lines or len(poses) == 0:
             return []
         self._refiner_map(state, poses, wall_cls)
@@ -4414,6 +4447,7 @@ class WallFusion:
                 if last is None:
                     continue
                 a, b = sorted((end, last))
+                self._continued_spans.setdefault(longest, []).append((a, b))
                 for a, b in self._uncovered(line, a, b, drawn):
                     out.append(MapWall(line["centre"] + a * line["direction"], line["centre"] + b * line["direction"],
                                        line["normal"].copy(), CLASSES[HIDDEN], 0.5 * min(1.0, float(np.median(kept))),
