@@ -353,14 +353,15 @@ class qa_wall_fusion(gr_unittest.TestCase):
     def test_partition_at_the_track_end_on_a_wall_drawn_on(self):
         """A room's back wall (y = -4.65) mapped from echoes from x = 4 to 10 only, drawn on
         past its echoes to the track's start at x = 0 (_hidden_walls_continued's stretch). A
-        stand-in gives the back wall's echo gain ratio along it: 1 but at the first pose
+        stand-in gives the back wall's echo gain ratio along it: 0.9 but at the first pose
         (0.05: the partition closing the building grazes a leg of its echo) and at x = 2
-        (0.1, with shoulders of 0.5: interference on the stretch drawn on). Without the
-        stretch the dips are looked for on the pieces only (their hull, 0.5 m past them)
-        and neither is found; with it (PARTITION_ON_CONTINUED) the first pose's is, deep
-        (a partition on its own), and the one at x = 2, not at the track's end, is not, nor
-        on a stretch that stops short of the track's end. The pieces' own profile is still
-        made over their hull alone."""
+        (0.1, with shoulders of 0.5: interference on the stretch drawn on), and over two poses
+        at x = 1.0-1.2 (0.25, 0.2: a partition's shadow). Without the stretch the dips are
+        looked for on the pieces only (their hull, 0.5 m past them) and none is found; with
+        it (PARTITION_ON_CONTINUED) the first pose's is, deep (a partition on its own), and
+        the run of two (PARTITION_CONTINUED_RUNS), neither deep; the lone one at x = 2, not at
+        the track's end, is not, on either stretch. The pieces' own profile is still made
+        over their hull alone."""
         poses = straight_poses(0.0, 10.0)
         fusion = WallFusion(RADAR, exact_settings())
         back = {"centre": np.array([7.0, -4.65]), "normal": np.array([0.0, 1.0]),
@@ -379,6 +380,9 @@ class qa_wall_fusion(gr_unittest.TestCase):
             if abs(t[at_2] + 5.0) < 0.11:
                 ratio[max(at_2 - 1, 0):at_2 + 2] = 0.5
                 ratio[at_2] = 0.1
+            at_1 = np.argmin(np.abs(t + 6.0))  # a run of two poses at x = 1.0-1.2: a partition's shadow
+            if abs(t[at_1] + 6.0) < 0.11:
+                ratio[at_1:at_1 + 2] = (0.25, 0.2)
             return t, np.ones(t.size), ratio
 
         fusion._gain_profile = profile
@@ -391,12 +395,19 @@ class qa_wall_fusion(gr_unittest.TestCase):
         stretch = {0: [(robot_x[0] - 7.0, -3.0)]}  # along the line, from the first pose to the pieces
         ((line, points, deep, ratio),) = fusion._partition_dips(state, poses, [HIDDEN], 0.3, stretch)
         self.assertEqual(hulls[0], (-3.5, 3.5))  # the pieces' profile as before
-        self.assertEqual(points.shape[0], 1, points)
-        self.assertAlmostEqual(float(points[0, 0]), robot_x[0], delta=1e-9)
-        self.assertTrue(deep[0])
-        self.assertAlmostEqual(float(ratio[0]), 0.05)
-        # a stretch drawn on from x = 1.5: its dip at x = 2 is not at the track's end
-        self.assertEqual(fusion._partition_dips(state, poses, [HIDDEN], 0.3, {0: [(-5.5, -3.0)]})[0][1].shape[0], 0)
+        self.assertEqual(points.shape[0], 3, points)
+        order = np.argsort(points[:, 0])
+        self.assertAlmostEqual(float(points[order[0], 0]), robot_x[0], delta=1e-9)
+        self.assertTrue(deep[order[0]])
+        self.assertAlmostEqual(float(ratio[order[0]]), 0.05)
+        # the run of two poses is taken, neither pose a partition alone; the lone dip at x = 2 is not
+        self.assertEqual([round(float(points[i, 0]), 6) for i in order[1:]],
+                         [round(float(x), 6) for x in robot_x[np.abs(robot_x - 1.1) < 0.15]])
+        self.assertFalse(deep[order[1:]].any())
+        # a stretch drawn on from x = 2.4: its lone dip at x = 2 is not at the track's end
+        self.assertEqual(fusion._partition_dips(state, poses, [HIDDEN], 0.3, {0: [(-4.6, -3.0)]})[0][1].shape[0], 0)
+        fusion.PARTITION_CONTINUED_RUNS = False  # the track's ends only
+        self.assertEqual(fusion._partition_dips(state, poses, [HIDDEN], 0.3, stretch)[0][1].shape[0], 1)
 
     def test_misfitted_continuation_of_an_oblique_wall_is_not_behind_it(self):
         """The class rule hides a line-of-sight wall whose echoes cross the extension of

@@ -4130,12 +4130,14 @@ class WallFusion:
     PARTITION_LONE_LINE_M = 4.0
     PARTITION_LONE_DEEP = True
     #: ...and looked for over the stretches where a hidden line is drawn on past its echoes
-    #: (_hidden_walls_continued), near the track's ends: a room's back wall whose echoes
+    #: (_hidden_walls_continued), above all near the track's ends: a room's back wall whose echoes
     #: stop short of the track's end is drawn on to it where the CSI holds its echo, and the
     #: partition closing the building there shadows the end pose's echo (a leg grazes it)
     PARTITION_ON_CONTINUED = True
-    #: ...there only within this of the track's ends along the line
+    #: ...there within this of the track's ends along the line, and elsewhere on the
+    #: stretches only in runs of two poses or more (PARTITION_CONTINUED_RUNS)
     PARTITION_TRACK_END_M = 0.5
+    PARTITION_CONTINUED_RUNS = True
 
     def _hidden_lines(self, walls_in, wall_cls):
         """[(pieces, longest, spans)]: _collinear_lines of walls_in's hidden walls, by their
@@ -4157,7 +4159,8 @@ class WallFusion:
         PARTITION_GAIN_RATIO); its ratio comes with it. continued_spans: {index of a line's
         longest piece: [(t0, t1) along it]} where the line is drawn on past its echoes
         (_hidden_walls_continued): its dips there are added within PARTITION_TRACK_END_M of
-        the track's ends (PARTITION_ON_CONTINUED)."""
+        the track's ends, and elsewhere in runs of two poses or more, none deep
+        (PARTITION_ON_CONTINUED, PARTITION_CONTINUED_RUNS)."""
         walls_in = state["walls"]
         limit = self.PARTITION_GAIN_RATIO if ratio_limit is None else ratio_limit
         lines = self._hidden_lines(walls_in, wall_cls)
@@ -4182,22 +4185,29 @@ class WallFusion:
             ratios = ratio[low]
             more = (continued_spans or {}).get(longest, ())
             if more:
-                # past the pieces, over the stretches drawn on, only at the track's ends: the
-                # partition closing the building there shadows the end pose's echo, and no pose
-                # beyond shows the echo back (over the whole stretches, dips of interference
-                # and of other lines' ends made 11 false partitions of 26 on the 24 office
-                # maps). A profile of its own, so that the pieces' ratios stay as they were
-                # (their reference median would take in the stretches' poses)
+                # past the pieces, over the stretches drawn on: at the track's ends any dip the
+                # rules take (the partition closing the building there shadows the end pose's
+                # echo, and no pose beyond shows the echo back). A profile of its own, so that
+                # the pieces' ratios stay as they were (their reference median would take in
+                # the stretches' poses)
                 wide = (min([hull[0]] + [a - self.PARTITION_BEYOND_M for a, _ in more]),
                         max([hull[1]] + [b + self.PARTITION_BEYOND_M for _, b in more]))
                 t2, _, ratio2 = self._gain_profile(line, pieces, poses, wide, 5)
                 along = (self._robot_positions(poses) - line["centre"]) @ line["direction"]
                 ends = (float(along.min()), float(along.max()))
-                low2 = np.array([i for i in np.flatnonzero(ratio2 < limit) if not hull[0] <= t2[i] <= hull[1]
-                                 and min(abs(t2[i] - e) for e in ends) <= self.PARTITION_TRACK_END_M], int)
+                past = [i for i in np.flatnonzero(ratio2 < limit) if not hull[0] <= t2[i] <= hull[1]]
+                at_end = [i for i in past if min(abs(t2[i] - e) for e in ends) <= self.PARTITION_TRACK_END_M]
+                # away from the ends, only dips in runs of two poses or more, none a partition
+                # alone: on the 24 office maps, the 10 partitions a lone dip there made (deep,
+                # or one pose seen on two lines) were all false, the 16 of runs of two or more
+                # poses right but one
+                mid = [i for i in past if i not in at_end and self.PARTITION_CONTINUED_RUNS and
+                       any(j != i and 0.0 < abs(t2[j] - t2[i]) <= self.PARTITION_MERGE_M for j in past)]
+                low2 = np.array(at_end + mid, int)
                 if low2.size:
                     points = np.vstack([points, line["centre"][None, :] + t2[low2, None] * line["direction"][None, :]])
-                    deep = np.concatenate([deep, self._deep_dips(ratio2, low2, mapped_m)])
+                    deep = np.concatenate([deep, self._deep_dips(ratio2, np.array(at_end, int), mapped_m),
+                                           np.zeros(len(mid), bool)])
                     ratios = np.concatenate([ratios, ratio2[low2]])
             out.append((line, points, deep, ratios))
         if self.PARTITION_DIPS_ACROSS_DOUBLES:
