@@ -2280,14 +2280,12 @@ class WallFusion:
                 w = state["walls"][mapped]
                 normal = w["normal"] if float(w["normal"] @ u) < 0.0 else -w["normal"]  # toward the track
                 point = origin + float((w["centre"] - origin) @ normal) / float(u @ normal) * u
-                corners = [(bistatic.lines_meet(candidates[k]["centre"], candidates[k]["normal"], point, normal), k)
-                           for k in sides]
                 direction = np.array([-normal[1], normal[0]])
-                ts = [float((c - point) @ direction) for c, _ in corners]
+                corners, t0, t1 = self._end_wall_corners(point, normal, direction, sides, candidates)
                 n_poses = int(np.unique(state["group"][w["members"]]).size)
-                found.append({"centre": point, "normal": normal, "direction": direction, "t0": min(ts),
-                              "t1": max(ts), "corners": corners, "poses": n_poses,
-                              "confidence": 0.9 * min(1.0, n_poses / 8.0), "end": end, "mapped": mapped})
+                found.append({"centre": point, "normal": normal, "direction": direction, "t0": t0, "t1": t1,
+                              "corners": corners, "poses": n_poses, "confidence": 0.9 * min(1.0, n_poses / 8.0),
+                              "end": end, "mapped": mapped})
                 continue
             side_walls = [candidates[k] for k in sides]
             scores, noise = self.refiner.end_wall_scores(origin, u, distances, groups, side_walls)
@@ -2309,14 +2307,22 @@ class WallFusion:
             else:
                 d = distances[best] + _peak_offset(*scores[best - 1:best + 2]) * self.END_WALL_STEP_M
             point = origin + d * u
-            corners = [(bistatic.lines_meet(candidates[k]["centre"], candidates[k]["normal"], point, u), k)
-                       for k in sides]
-            ts = [float((c - point) @ lateral) for c, _ in corners]
+            corners, t0, t1 = self._end_wall_corners(point, u, lateral, sides, candidates)
             ratio = scores[best] / max(noise[best], 1e-300) / self.END_WALL_SIGNIFICANCE
-            found.append({"centre": point, "normal": -u, "direction": lateral, "t0": min(ts), "t1": max(ts),
+            found.append({"centre": point, "normal": -u, "direction": lateral, "t0": t0, "t1": t1,
                           "corners": corners, "poses": len(groups), "confidence": float(0.9 - 0.4 / max(ratio, 1.0)),
                           "end": end, "mapped": None})
         return found
+
+    @staticmethod
+    def _end_wall_corners(point, normal, direction, sides, candidates):
+        """([(corner (2,), k)], t0, t1): where an end wall's line (through `point`, normal
+        `normal`) meets each side wall candidates[k] for k in `sides`, and the corners' extent
+        along `direction` from `point`."""
+        corners = [(bistatic.lines_meet(candidates[k]["centre"], candidates[k]["normal"], point, normal), k)
+                   for k in sides]
+        ts = [float((c - point) @ direction) for c, _ in corners]
+        return corners, min(ts), max(ts)
 
     def _mapped_across(self, walls, wall_cls, origin, u, reach_m):
         """The index of the nearest line-of-sight wall of `walls` standing across the track's
@@ -3563,8 +3569,9 @@ class WallFusion:
         # been put on its line, office_floor seed 9). An end wall that is a wall mapped from
         # echoes (END_WALL_ON_MAPPED) is not drawn again: its corners extend that wall
         side_walls = list(side_walls)
-        all_end_walls = list(end_walls)
-        for n_all, end_wall in enumerate(all_end_walls):
+        all_end_walls, drawn = [], []  # with their corners where the lines are now; those drawn
+        n_drawn = sum(1 for e in end_walls if e.get("mapped") is None)
+        for end_wall in end_walls:
             mapped = end_wall.get("mapped")
             line = end_wall if mapped is None else walls_in[mapped]
             moved = []
@@ -3577,17 +3584,15 @@ class WallFusion:
                 moved.append((position, k))
             ts = [float((position - line["centre"]) @ line["direction"]) for position, _ in moved]
             if mapped is None:
+                end_index = len(walls_in) + len(drawn)
                 end_wall = dict(end_wall, corners=moved, t0=min(ts), t1=max(ts))
+                drawn.append(end_wall)
             else:
+                end_index = mapped
                 ends[mapped][0] = min([ends[mapped][0]] + ts)
                 ends[mapped][1] = max([ends[mapped][1]] + ts)
                 end_wall = dict(end_wall, corners=moved)
-            all_end_walls[n_all] = end_wall
-        end_walls = [e for e in all_end_walls if e.get("mapped") is None]
-        for n_all, end_wall in enumerate(all_end_walls):
-            mapped = end_wall.get("mapped")
-            end_index = mapped if mapped is not None else \
-                len(walls_in) + sum(1 for e in all_end_walls[:n_all] if e.get("mapped") is None)
+            all_end_walls.append(end_wall)
             for position, k in end_wall["corners"]:
                 corners = [c for c in corners if np.hypot(*(c.position_m - position)) > 2.0 * s.corner_wall_distance_m]
                 w = self._corner_side(k, walls_in, side_walls)
@@ -3599,9 +3604,10 @@ class WallFusion:
                 else:
                     j = k - len(walls_in)
                     side_walls[j] = dict(w, t0=min(w["t0"], t), t1=max(w["t1"], t))
-                    named = len(walls_in) + len(end_walls) + j
+                    named = len(walls_in) + n_drawn + j
                 corners.append(MapCorner(np.asarray(position, float), end_wall["confidence"], CLASSES[LOS],
                                          end_wall["poses"], (int(named), int(end_index))))
+        end_walls = drawn
         walls = []
         detections = {c: [] for c in CLASSES}
         echoes = {c: [] for c in CLASSES}
@@ -3708,11 +3714,12 @@ class WallFusion:
         # under PARTITION_GAIN_RATIO, the partitions drawn from those under PARTITION_DRAW_RATIO
         view_limit = self.PARTITION_GAIN_RATIO
         draw_limit = view_limit if self.PARTITION_DRAW_RATIO is None else self.PARTITION_DRAW_RATIO
-        continued = []
+        continued, continued_spans = [], {}
         if self._fits_on_csi and s.continue_hidden_walls:  # (before the views through doors: seen, they are)
-            continued = self._timed("hidden walls continued", self._hidden_walls_continued, state, poses, wall_cls,
-                                    walls)
-        continued_spans = getattr(self, "_continued_spans", {}) if continued and self.PARTITION_ON_CONTINUED else None
+            continued, continued_spans = self._timed("hidden walls continued", self._hidden_walls_continued, state,
+                                                     poses, wall_cls, walls)
+        # (the stretches are searched where any of them was drawn, as measured)
+        continued_spans = continued_spans if continued and self.PARTITION_ON_CONTINUED else None
         found_dips = self._timed("partition dips", self._partition_dips, state, poses, wall_cls,
                                  max(view_limit, draw_limit), continued_spans) if want_dips else []
         dips, draw_dips = self._dips_under(found_dips, view_limit), self._dips_under(found_dips, draw_limit)
@@ -4168,6 +4175,7 @@ class WallFusion:
             return []
         self._refiner_map(state, poses, wall_cls)  # (as the openings have it)
         out = []
+        robots = self._robot_positions(poses) if continued_spans else None
         for pieces, longest, spans in lines:
             line = walls_in[longest]
             # where its pieces lie (off them, the line is another wall's, or none)
@@ -4193,7 +4201,7 @@ class WallFusion:
                 wide = (min([hull[0]] + [a - self.PARTITION_BEYOND_M for a, _ in more]),
                         max([hull[1]] + [b + self.PARTITION_BEYOND_M for _, b in more]))
                 t2, _, ratio2 = self._gain_profile(line, pieces, poses, wide, 5)
-                along = (self._robot_positions(poses) - line["centre"]) @ line["direction"]
+                along = (robots - line["centre"]) @ line["direction"]
                 ends = (float(along.min()), float(along.max()))
                 past = [i for i in np.flatnonzero(ratio2 < limit) if not hull[0] <= t2[i] <= hull[1]]
                 at_end = [i for i in past if min(abs(t2[i] - e) for e in ends) <= self.PARTITION_TRACK_END_M]
@@ -4400,8 +4408,9 @@ class WallFusion:
     CONTINUE_MAX_FRACTION = 0.5
 
     def _hidden_walls_continued(self, state, poses, wall_cls, drawn=()):
-        """[MapWall]: hidden walls drawn on past the ends of their line's mapped pieces, on the
-        CSI (source "continued"). JADE reports few echoes of the rooms' back walls behind a
+        """([MapWall], stretches): hidden walls drawn on past the ends of their line's mapped pieces,
+        on the CSI (source "continued"), and the stretches kept, {index of the line's longest
+        piece in state["walls"]: [(t0, t1) along it]} (for _partition_dips). JADE reports few echoes of the rooms' back walls behind a
         corridor wall (56 on office_floor's 100 poses), and whole stretches of them go
         unmapped; the CSI of the poses beside such a stretch holds the wall's echo about as
         strongly as its mapped part does (_line_gain, the pieces left in: 0.3-1.3 of their
@@ -4415,9 +4424,9 @@ class WallFusion:
         walls_in = state["walls"]
         lines = [q for q in self._hidden_lines(walls_in, wall_cls)
                  if walls_in[q[1]]["t1"] - walls_in[q[1]]["t0"] >= self.CONTINUE_MIN_M]
-        self._continued_spans = {}  # {longest piece's index: [(t0, t1) along it]}, for _partition_dips
+        stretches = {}
         if not lines or len(poses) == 0:
-            return []
+            return [], stretches
         self._refiner_map(state, poses, wall_cls)
         out = []
         for pieces, longest, spans in lines:
@@ -4457,12 +4466,12 @@ class WallFusion:
                 if last is None:
                     continue
                 a, b = sorted((end, last))
-                self._continued_spans.setdefault(longest, []).append((a, b))
+                stretches.setdefault(longest, []).append((a, b))
                 for a, b in self._uncovered(line, a, b, drawn):
                     out.append(MapWall(line["centre"] + a * line["direction"], line["centre"] + b * line["direction"],
                                        line["normal"].copy(), CLASSES[HIDDEN], 0.5 * min(1.0, float(np.median(kept))),
                                        len(kept), 0, 0.0, source="continued"))
-        return out
+        return out, stretches
 
     def _uncovered(self, line, a, b, walls):
         """The stretches of [a, b] along `line` (wall dict) that no wall of `walls` (MapWalls)
