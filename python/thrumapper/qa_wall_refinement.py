@@ -696,6 +696,43 @@ class qa_wall_refinement(gr_unittest.TestCase):
         refiner.set_map([far], sc.poses, [[] for _ in sc.poses], [False])
         self.assertEqual(refiner.material_offsets(0, [brick]), [None])
 
+    def test_material_offset_not_pulled_by_cabinets_in_front(self):
+        """The brick wall above (face y = -1.5 m, x = 0-8 m seen) with two metal cabinets
+        0.2-0.3 m in front of it at x = 5.0 and 5.6 m. The best offset of the poses' summed
+        J goes to the cabinets (0.27-0.29 m toward the robot, or past the search when they
+        stand 0.4 m out): the few poses beside them see the most energy. Each pose's best
+        offset alone, their median (CsiWallRefiner.MATERIAL_OFFSET_PER_POSE = True), or the
+        sum over the poses within MATERIAL_INLIER_M of it ("inliers"), puts the wall on its
+        face to 1 cm. Without the cabinets all three do."""
+        brick = scene.MATERIAL_PRESETS["brick"]
+        saved = CsiWallRefiner.MATERIAL_OFFSET_PER_POSE
+        try:
+            for cabinet_y in (-1.2, -1.1, None):
+                data = straight_survey_data(
+                    [{"name": "brick", "segment": [[-2.0, -1.6], [10.0, -1.6]], "material": "brick"}], 8.0, 0.4)
+                data["impairments"] = {"system_delay_s": 31.0e-9, "system_delay_known": True}
+                data["clutter"] = [] if cabinet_y is None else [
+                    {"name": f"cabinet_{i}", "position_m": [x, cabinet_y], "preset": "metal_cabinet"}
+                    for i, x in enumerate((5.0, 5.6))]
+                sc = scene.load_scene(data)
+                res = building_sim.simulate_survey(sc, progress=False)
+                refiner = refiner_for(res, groups=range(sc.poses.shape[0]))
+                line = dict(wall(-1.5), t0=-2.0, t1=10.0, centre=np.array([4.0, -1.5]))
+                refiner.set_map([line], sc.poses, [[] for _ in sc.poses], [False])
+                offsets = {}
+                for mode in (False, True, "inliers"):
+                    CsiWallRefiner.MATERIAL_OFFSET_PER_POSE = mode
+                    offsets[mode], = refiner.material_offsets(0, [brick])
+                for mode in (True, "inliers"):
+                    self.assertIsNotNone(offsets[mode], (cabinet_y, offsets))
+                    self.assertLess(abs(offsets[mode]), 0.01, (cabinet_y, offsets))
+                if cabinet_y is None:
+                    self.assertLess(abs(offsets[False]), 0.01, offsets)
+                else:  # toward the robot (+) by the cabinets, or no maximum within the search
+                    self.assertTrue(offsets[False] is None or offsets[False] > 0.2, (cabinet_y, offsets))
+        finally:
+            CsiWallRefiner.MATERIAL_OFFSET_PER_POSE = saved
+
     def test_side_wall_found_where_jade_reports_one(self):
         """A corridor of two plasterboard walls 2.15 m apart (faces at y = -1.0 and +1.0), the
         robot down its middle with the office's radar: both walls' echoes come with the same
