@@ -751,8 +751,8 @@ class CsiWallRefiner:
     #: rather than the best offset of all the poses' summed J (False). The sum is ruled by
     #: the poses that see the wall strongest, and those can be where something else answers
     #: too: from the true map and poses the office's north exterior wall comes 4-14 cm in
-    #: front of its face by the sum or the inliers, pulled by the poses behind the open door
-    #: and beside the metal cabinet and the desk in front of it (15-36 cm each), and within
+    #: front of its face by the sum or the inliers, pulled by the poses beside the metal
+    #: cabinet and the desk in front of it and behind the open door (15-36 cm each), and within
     #: 1 cm by the median. But on the 24 office maps the median moves the south exterior wall
     #: 3 cm back as it moves the north one 4-5 cm back to its face, a partition dip appears, and
     #: two maps' views through the open door change class (hidden median 0.092 -> 0.099 m,
