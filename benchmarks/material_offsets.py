@@ -102,14 +102,9 @@ def main(argv=None):
                     cells.append("none" if offset is None else f"{100 * offset:+.1f}")
                 print(f"| {seed} | {name} ({EXTERIOR[name]}) | " + " | ".join(cells) + " |", flush=True)
                 if args.poses:
-                    wall, row = walls[k], []
-                    for g in range(0, len(poses), 3):
-                        if not refiner.sees(g, k):
-                            continue
-                        pivot = refiner._pivot(wall, poses[g])
-                        offset = refiner._offset_search(refiner._objective(
-                            k, [g], pivot, bases={g: refiner._basis(g, k)}, material=material))
-                        row.append(f"{poses[g, 0]:.1f} m: " + ("none" if offset is None else f"{100 * offset:+.0f}"))
+                    groups = [g for g in range(0, len(poses), 3) if refiner.sees(g, k)]
+                    row = [f"{poses[g, 0]:.1f} m: " + ("none" if offset is None else f"{100 * offset:+.0f}")
+                           for g, offset in zip(groups, refiner.pose_material_offsets(k, groups, material))]
                     print(f"|   | each pose, x: cm | {'; '.join(row)} |", flush=True)
     finally:
         CsiWallRefiner.MATERIAL_OFFSET_PER_POSE = saved

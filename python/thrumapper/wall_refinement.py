@@ -797,10 +797,8 @@ class CsiWallRefiner:
             return [self._offset_search(self._objective(k, groups, pivot, bases=bases, material=material))
                     for material in materials]
         out = []
-        crossed = self._crossed_for(k)
         for material in materials:
-            found = [self._offset_search(self._objective(k, [g], pivot, bases=bases, crossed=crossed, material=material))
-                     for g in groups]
+            found = self.pose_material_offsets(k, groups, material, pivot, bases)
             kept = [(g, x) for g, x in zip(groups, found) if x is not None]
             if len(kept) < self.MATERIAL_PER_POSE_MIN:
                 out.append(None)
@@ -812,8 +810,24 @@ class CsiWallRefiner:
                 continue
             spread = max(self.MATERIAL_INLIER_M, 2.5 * 1.4826 * float(np.median(np.abs(xs - median))))
             inliers = [g for g, x in kept if abs(x - median) <= spread]
-            out.append(self._offset_search(self._objective(k, inliers, pivot, bases=bases, crossed=crossed,
-                                                           material=material)))
+            out.append(self._offset_search(self._objective(k, inliers, pivot, bases=bases, material=material)))
+        return out
+
+    def pose_material_offsets(self, k, groups, material, pivot=None, bases=None):
+        """Each group's own best offset of wall k along its normal with `material`'s echo, as
+        material_offsets searches it (None where the group does not see the wall or the best
+        point is the search's end): its per-pose step (MATERIAL_OFFSET_PER_POSE), and where
+        the summed J is pulled (benchmarks/material_offsets.py --poses). pivot: any point
+        (the search holds the direction); bases: per group, default everything else there."""
+        wall = self.walls[k]
+        out = []
+        for g in groups:
+            if not self.sees(g, k):
+                out.append(None)
+                continue
+            at = self._pivot(wall, self.world_poses[g]) if pivot is None else pivot
+            basis = self._basis(g, k) if bases is None else bases[g]
+            out.append(self._offset_search(self._objective(k, [g], at, bases={g: basis}, material=material)))
         return out
 
     def _offset_search(self, objective):
