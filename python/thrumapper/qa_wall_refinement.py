@@ -1525,6 +1525,39 @@ class qa_wall_refinement(gr_unittest.TestCase):
         self.assertLess(abs(peak - 3.0), 0.02, peak)
         self.assertGreater(behind.max() / np.median(behind), 10.0)  # AXIAL_MIN_RATIO is 5
 
+    def test_axial_profile_with_the_wall_across_already_mapped(self):
+        """The metal wall of test_axial_profile_ranges_a_wall_behind (face x = -3.0 m) already
+        in the map as JADE's echoes may put it, 0.1 m short and turned 8°. Projected out
+        with the other mapped walls it takes most of its own echo with it: the profile then
+        peaks 0.2 m or more off 3.0 m (at the edges of what the mapped echo removes). With
+        the walls across the axis on the side looked at left in
+        (AXIAL_EXCLUDE_ACROSS_DEG = 30, what WallFusion's last adjustment ranges its axial
+        landmark with) it peaks at 3.0 m to 2 cm, over 10 times its median, as with an
+        empty map. Looking ahead (0), the wall behind is not across the axis on that side:
+        projected out as before."""
+        data = scene_data("paper_4_2_wall_2p2m")
+        data["walls"] = [{"name": "across", "segment": [[-3.0, -2.0], [-3.0, 2.0]], "material": "metal"}]
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+        refiner = refiner_for(res)
+        tilt = math.radians(8.0)
+        mapped = {"centre": np.array([-2.9, 0.0]), "normal": np.array([math.cos(tilt), math.sin(tilt)]),
+                  "direction": np.array([-math.sin(tilt), math.cos(tilt)]), "t0": -2.0, "t1": 2.0}
+        refiner.set_map([mapped], np.zeros((1, 3)), [[]], [False])
+        distances = np.arange(0.6, 8.0, 0.01)
+        projected = refiner.axial_profile(0, math.pi, distances)
+        self.assertGreater(abs(float(distances[np.argmax(projected)]) - 3.0), 0.2)
+        refiner.AXIAL_EXCLUDE_ACROSS_DEG = 30.0
+        left_in = refiner.axial_profile(0, math.pi, distances)
+        peak = float(distances[np.argmax(left_in)])
+        self.assertLess(abs(peak - 3.0), 0.02, peak)
+        self.assertGreater(left_in.max() / np.median(left_in), 10.0)
+        # ahead: the same basis as without the setting (the wall behind stays projected out)
+        refiner.AXIAL_EXCLUDE_ACROSS_DEG = None
+        ahead_default = refiner.axial_profile(0, 0.0, distances)
+        refiner.AXIAL_EXCLUDE_ACROSS_DEG = 30.0
+        np.testing.assert_allclose(refiner.axial_profile(0, 0.0, distances), ahead_default, rtol=1e-9)
+
     def test_carrier_phase_measures_the_path_change_from_pose_to_pose(self):
         """A plasterboard wall (face y = -1 m) and the robot driven away from it at 3° to it,
         a pose every 0.2 m: each step takes the arrays' midpoint 10.5 mm further from the
@@ -1660,7 +1693,9 @@ class qa_wall_refinement(gr_unittest.TestCase):
         corridor's end wall, its face (x = -2.925 m) to 0.3 m: by the end-wall search, which
         does not reach 3 m behind (its corners lie in the TX beam's weak part near the axis)
         but looks within 0.5 m of the landmark, or from its own echoes where JADE reports
-        them (as it does once the poses are right to a few centimetres)."""
+        them (as it does once the poses are right to a few centimetres). The last adjustment,
+        which moves the finished map, ranges the landmark again (with a wall mapped across
+        it left in) and takes its scale from there: the same to 1 %."""
         data = scene_data("office_floor_drift")
         data["odometry"]["scale_error"] = 0.02
         data["frames_per_pose"] = 2
@@ -1671,6 +1706,10 @@ class qa_wall_refinement(gr_unittest.TestCase):
         along_m = float(fused.trajectory[-1, 0] - res.poses_true[-1, 0])  # the corridor runs along x
         self.assertGreaterEqual(fused.stats["axial_landmarks"], 1, fused.stats)
         self.assertLess(abs(fused.stats["odometry_scale"] - 1.0 / 1.02), 0.01, (along_m, fused.stats))
+        # ranged again for the last adjustment (PHASE_POSES_AXIAL_ACROSS_DEG), whose scale
+        # the finished map's trajectory carries
+        self.assertGreaterEqual(fused.stats["phase_poses_axial_ranges"], 25, fused.stats)
+        self.assertLess(abs(fused.stats["phase_poses_scale"] - 1.0 / 1.02), 0.01, fused.stats)
         self.assertLess(abs(along_m), 0.15, along_m)
         ends = [w for w in fused.walls if w.cls == "line_of_sight" and max(w.start_m[0], w.end_m[0]) < 0.0
                 and abs(w.normal[0]) > math.cos(math.radians(10.0))]

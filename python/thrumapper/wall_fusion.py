@@ -768,6 +768,12 @@ class WallFusion:
     #: holds answers with a steady offset per step), so that what they measure is how the
     #: path's change changes along the wall: the heading's drift
     PHASE_STEP_MIN_STEPS = 8
+    #: ...that constant's prior, metres of path a step (None: free). A wall's constant
+    #: absorbs a steady angle between the wall and the track, which is the map's turn too;
+    #: held near 0 (0.5 or 2 mm) in the last adjustment the 24 office maps turn as much
+    #: (6.8 -> 6.6 mrad RMS, trajectories the same): not what turns them (docs/mapping.md,
+    #: "The axial landmark behind a wall mapped across it")
+    PHASE_STEP_FREE_SIGMA_M = None
     #: the pose adjustment's model of the CSI fits' runs of bias along a line-of-sight wall
     #: (with the CSI): their size, how far along the wall they hold, the knots' spacing
     #: (_adjust_poses). Off (0: the fits taken as white noise): with 5 cm the office maps
@@ -966,6 +972,7 @@ class WallFusion:
         self._labelled_facing = set()  # walls labelled mostly against walls facing their way (_estimate_materials)
         self._tx_gains_db = {}  # _tx_gain_db's, by direction
         self._phase_fit = None  # the carrier phase's adjustment (_phase_poses), set by build_map
+        self._phase_axial_stats = {}  # _phase_poses_scale's ranges and verdict
         self.counts = {"messages": 0, "paths": 0, "skipped_nonfinite": 0, "skipped_early": 0, "skipped_far": 0,
                        "skipped_weak": 0}
 
@@ -2611,7 +2618,8 @@ class WallFusion:
 
         A corridor's end wall answers from ten metres and more, at delays beyond the
         estimator's range. Each pose's axial_profile (the CSI's energy from a wall across its
-        axis at each distance, the mapped walls projected out) votes for the along-track
+        axis at each distance, the mapped walls projected out, or those along
+        the track only with CsiWallRefiner.AXIAL_EXCLUDE_ACROSS_DEG) votes for the along-track
         position of such a wall (distance travelled plus or minus the range); the
         best-supported position beyond each end is ranged pose by pose at its profile's peak
         near there. It need not be an end wall (anything across the corridor at one place
@@ -2833,6 +2841,7 @@ class WallFusion:
         det_cls, wall_cls = self._classify(state)
         phase_poses = None
         self._phase_fit = None
+        self._phase_axial_stats = {}
         if corrected and self.PHASE_POSES_FOR_GEOMETRY and self._fits_on_csi:
             phase_poses = self._timed("pose correction", self._phase_poses, det, odometry, poses, state, wall_cls,
                                       axial)
@@ -2915,6 +2924,46 @@ class WallFusion:
     #: (docs/mapping.md, "The map's turn and the wheels' first metres")
     PHASE_POSES_HEADING_SIGMA_DEG = None
     PHASE_POSES_POSITION_SIGMA_M = None
+    #: ...and, where not None, its odometry scale from the axial landmarks ranged once more
+    #: with the mapped walls across the axis within this many degrees left in the profile
+    #: (_phase_poses_scale): a wall across the track that the rounds mapped from JADE's
+    #: echoes is the landmark itself, and projected out it took the landmark's echo with it
+    #: (the west end wall ranged on no pose of office_floor seed 1 and of the drifting
+    #: office's seed 8 in the rounds, on 12 and 35 poses so). 24 office surveys:
+    #: trajectories 0.121 -> 0.094 m median (mean 0.107 -> 0.098 m), 14 of 24 within
+    #: 0.10 m (10), the walls' figures the same (docs/mapping.md, "The axial landmark
+    #: behind a wall mapped across it")
+    PHASE_POSES_AXIAL_ACROSS_DEG = 30.0
+
+    def _phase_poses_scale(self, det, odometry, poses, state, wall_cls, axial):
+        """(axial, scale) for the last adjustment: the axial landmarks ranged again on the
+        rounds' last map with the mapped walls across the axis left in the profile
+        (CsiWallRefiner.AXIAL_EXCLUDE_ACROSS_DEG = PHASE_POSES_AXIAL_ACROSS_DEG), and the
+        odometry's scale of one more adjustment on them (the rounds' fit, their stats and
+        their implausible-scale latch left as they were)."""
+        refiner = self.refiner
+        own = "AXIAL_EXCLUDE_ACROSS_DEG" in vars(refiner)
+        kept = refiner.AXIAL_EXCLUDE_ACROSS_DEG
+        refiner.AXIAL_EXCLUDE_ACROSS_DEG = self.PHASE_POSES_AXIAL_ACROSS_DEG
+        try:
+            found = self._axial_landmarks(state, poses, wall_cls, axial)
+        finally:
+            if own:
+                refiner.AXIAL_EXCLUDE_ACROSS_DEG = kept
+            else:
+                del refiner.AXIAL_EXCLUDE_ACROSS_DEG  # back to the class's setting
+        axial = found + [a for a in axial if a["sign"] not in {f["sign"] for f in found}]
+        kept_fit, kept_latch = self._odometry_fit, self._scale_latched
+        self._scale_latched = False
+        try:
+            self._adjust_poses(det, odometry, poses, state, wall_cls, axial)
+            fit = self._odometry_fit or {}
+        finally:
+            self._odometry_fit, self._scale_latched = kept_fit, kept_latch
+        self._phase_axial_stats = {"phase_poses_axial_ranges": sum(len(a["ranges"]) for a in axial),
+                                   "phase_poses_scale_implausible": bool(fit.get("odometry_scale_implausible"))}
+        scale = 1.0 if fit.get("odometry_scale_implausible") else float(fit.get("odometry_scale", 1.0))
+        return axial, scale
 
     def _phase_poses(self, det, odometry, poses, state, wall_cls, axial):
         """The poses of one more adjustment from `poses` (_adjust_poses), with the walls'
@@ -2923,10 +2972,13 @@ class WallFusion:
         distance travelled), or at 1 where the axial landmarks gave fewer than
         PHASE_POSES_SCALE_MIN_AXIAL_RANGES ranges: without a wall across the track ranged
         often enough, what sets the rounds' scale (point landmarks on JADE's delays, a few
-        ranges) is no better than the wheels. The round's own fit (stats) is left as it was.
-        None where no wall gives phase steps."""
+        ranges) is no better than the wheels. With PHASE_POSES_AXIAL_ACROSS_DEG the landmarks
+        are ranged again first, and the scale is that of their ranges (_phase_poses_scale).
+        The round's own fit (stats) is left as it was. None where no wall gives phase steps."""
         rounds_fit = self._odometry_fit
         scale = float(rounds_fit["odometry_scale"]) if rounds_fit else 1.0
+        if self.PHASE_POSES_AXIAL_ACROSS_DEG is not None and self.refiner is not None:
+            axial, scale = self._phase_poses_scale(det, odometry, poses, state, wall_cls, axial)
         if self.PHASE_POSES_SCALE_MIN_AXIAL_RANGES is not None and \
                 sum(len(a["ranges"]) for a in axial) < self.PHASE_POSES_SCALE_MIN_AXIAL_RANGES:
             scale = 1.0
@@ -2991,6 +3043,7 @@ class WallFusion:
             result.stats["phase_poses_steps"] = self._phase_fit["adjustment_phase_steps"]
             result.stats["phase_poses_scale"] = self._phase_fit["odometry_scale"]
             result.stats["phase_poses_moved_m"] = float(np.max(np.hypot(*(new[:, :2] - old[:, :2]).T)))
+            result.stats.update(self._phase_axial_stats)
 
     def _sequential_poses(self, det, odometry, shifts, ghosts):
         """An extended Kalman filter over the pose: predicted with each odometry increment
@@ -3263,13 +3316,16 @@ class WallFusion:
                     self._bistatic_lengths(ps[ph_g], n_, wl[ph_slot, 1])
                 free = x[n_fixed + n_bias:n_fixed + n_bias + n_free]
                 out.extend(((step - ph_step - free[ph_free]) / ph_sigma).tolist())
+                if free_prior:
+                    out.extend((free / self.PHASE_STEP_FREE_SIGMA_M).tolist())
             for start, count in knot_first:  # the bias runs' AR(1) prior, line by line
                 b = bias[start:start + count]
                 out.append(b[0] / self.BIAS_RUN_SIGMA_M)
                 out.extend(((b[1:] - rho * b[:-1]) / bias_step_sigma).tolist())
             return np.array(out) * row_weights[0]
 
-        m = 3 * (P - 1) + 3 + 2 * len(obs_w) + 2 * len(obs_c) + ax_g.size + ph_g.size + n_bias
+        free_prior = n_free if self.PHASE_STEP_FREE_SIGMA_M is not None else 0
+        m = 3 * (P - 1) + 3 + 2 * len(obs_w) + 2 * len(obs_c) + ax_g.size + ph_g.size + free_prior + n_bias
         # the Jacobian's pattern, block by block as index arrays (a lil_matrix filled entry by
         # entry took most of the adjustment's time on a long survey)
         rows_at, cols_at = [], []
@@ -3318,6 +3374,10 @@ class WallFusion:
         entries(rows, n_pose + 2 * ph_slot[:, None] + np.arange(2)[None, :])
         entries(rows, n_fixed + n_bias + ph_free[:, None])
         row += ph_g.size
+        if free_prior:
+            rows = row + np.arange(n_free)
+            entries(rows, n_fixed + n_bias + np.arange(n_free)[:, None])
+            row += n_free
         for start, count in knot_first:
             entries([row], [[n_fixed + start]])
             rows = row + np.arange(1, count)
