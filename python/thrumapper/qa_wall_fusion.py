@@ -966,6 +966,51 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertEqual(scale_with([]), 1.0)
         self.assertEqual(scale_with([], PHASE_POSES_SCALE_MIN_AXIAL_RANGES=None), 0.985)
 
+    def test_final_adjustment_ranges_the_axial_landmark_again(self):
+        """Before the last adjustment the axial landmark is ranged again with the mapped
+        walls across the axis left in the profile (the refiner's AXIAL_EXCLUDE_ACROSS_DEG set
+        to PHASE_POSES_AXIAL_ACROSS_DEG for that ranging only), and the odometry's scale is
+        that of one more adjustment on those ranges, its implausible-scale latch fresh; the
+        rounds' fit and latch are left as they were. Where the rounds' landmark holds more
+        ranges (27 against 22 here), its ranges and the rounds' scale stand."""
+        fusion = WallFusion(RADAR, exact_settings(correct_poses=False))
+
+        class Refiner:
+            AXIAL_EXCLUDE_ACROSS_DEG = None
+
+        fusion.refiner = Refiner()
+        rounds_axial = [{"sign": -1.0, "ranges": [(g, 3.0 + 0.2 * g) for g in range(27)], "position_m": -3.0,
+                         "rate": 1.0}]
+        settings_seen = []
+
+        def ranged_on(count):
+            def axial_landmarks(state, poses, wall_cls, previous=()):
+                self.assertIs(previous, rounds_axial)  # the rounds' landmark is ranged again
+                settings_seen.append(fusion.refiner.AXIAL_EXCLUDE_ACROSS_DEG)
+                return [{"sign": -1.0, "ranges": [(g, 3.0 + 0.2 * g) for g in range(count)], "position_m": -3.0,
+                         "rate": 1.0}]
+            return axial_landmarks
+
+        def adjusted(det, odometry, poses, state, wall_cls, axial):
+            # what _adjust_poses leaves: its fit, implausible only if the latch was set
+            fusion._odometry_fit = {"odometry_scale": 0.991, "odometry_scale_implausible": fusion._scale_latched,
+                                    "ranges": sum(len(a["ranges"]) for a in axial)}
+
+        fusion._adjust_poses = adjusted
+        rounds_fit = {"odometry_scale": 0.985}
+        for count, expected_ranges, expected_scale in ((30, 30, 0.991), (22, 27, 0.985)):
+            fusion._odometry_fit, fusion._scale_latched = dict(rounds_fit), True
+            fusion._axial_landmarks = ranged_on(count)
+            axial, scale = fusion._phase_poses_scale({}, None, None, {}, [], rounds_axial)
+            self.assertEqual(sum(len(a["ranges"]) for a in axial), expected_ranges)
+            self.assertEqual(scale, expected_scale)
+            self.assertEqual(fusion._phase_axial_stats["phase_poses_axial_again"], count >= 27)
+            self.assertEqual(fusion._odometry_fit, rounds_fit)
+            self.assertTrue(fusion._scale_latched)
+        self.assertEqual(settings_seen, [WallFusion.PHASE_POSES_AXIAL_ACROSS_DEG] * 2)
+        self.assertEqual(WallFusion.PHASE_POSES_AXIAL_ACROSS_DEG, 30.0)
+        self.assertNotIn("AXIAL_EXCLUDE_ACROSS_DEG", vars(fusion.refiner))  # back to the class's
+
     def test_dip_runs_and_their_place(self):
         """The dips along a line come in runs of neighbours within the merge distance, in
         order, whatever order they are given in: poses 0.2 m apart at 3.8, 4.0 and 4.2 m are

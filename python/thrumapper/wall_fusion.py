@@ -2931,8 +2931,9 @@ class WallFusion:
     #: (the west end wall ranged on no pose of office_floor seed 1 and of the drifting
     #: office's seed 8 in the rounds, on 12 and 35 poses so). 24 office surveys:
     #: trajectories 0.121 -> 0.094 m median (mean 0.107 -> 0.098 m), 14 of 24 within
-    #: 0.10 m (10), the walls' figures the same (docs/mapping.md, "The axial landmark
-    #: behind a wall mapped across it")
+    #: 0.10 m (10), the walls' figures the same; 0.093 m (0.095), 16, where the rounds'
+    #: landmark, ranged on more poses, is kept (docs/mapping.md, "The axial landmark behind
+    #: a wall mapped across it")
     PHASE_POSES_AXIAL_ACROSS_DEG = 30.0
 
     def _phase_poses_scale(self, det, odometry, poses, state, wall_cls, axial):
@@ -2940,7 +2941,10 @@ class WallFusion:
         rounds' last map with the mapped walls across the axis left in the profile
         (CsiWallRefiner.AXIAL_EXCLUDE_ACROSS_DEG = PHASE_POSES_AXIAL_ACROSS_DEG), and the
         odometry's scale of one more adjustment on them (the rounds' fit, their stats and
-        their implausible-scale latch left as they were)."""
+        their implausible-scale latch left as they were); the rounds' landmarks and scale
+        where those were ranged on more poses (a landmark once found is carried from round
+        to round, so its ranges may be an earlier map's: the drifting office's seed 9, 27
+        ranges then, 22 on the last map)."""
         refiner = self.refiner
         own = "AXIAL_EXCLUDE_ACROSS_DEG" in vars(refiner)
         kept = refiner.AXIAL_EXCLUDE_ACROSS_DEG
@@ -2952,7 +2956,15 @@ class WallFusion:
                 refiner.AXIAL_EXCLUDE_ACROSS_DEG = kept
             else:
                 del refiner.AXIAL_EXCLUDE_ACROSS_DEG  # back to the class's setting
-        axial = found + [a for a in axial if a["sign"] not in {f["sign"] for f in found}]
+        again = found + [a for a in axial if a["sign"] not in {f["sign"] for f in found}]
+        if sum(len(a["ranges"]) for a in again) < sum(len(a["ranges"]) for a in axial):
+            # the rounds' landmark, ranged in an earlier round on another map, was measured on
+            # more poses: its ranges and the rounds' scale stand
+            self._phase_axial_stats = {"phase_poses_axial_ranges": sum(len(a["ranges"]) for a in axial),
+                                       "phase_poses_axial_again": False}
+            rounds_fit = self._odometry_fit
+            return axial, float(rounds_fit["odometry_scale"]) if rounds_fit else 1.0
+        axial = again
         kept_fit, kept_latch = self._odometry_fit, self._scale_latched
         self._scale_latched = False
         try:
@@ -2961,6 +2973,7 @@ class WallFusion:
         finally:
             self._odometry_fit, self._scale_latched = kept_fit, kept_latch
         self._phase_axial_stats = {"phase_poses_axial_ranges": sum(len(a["ranges"]) for a in axial),
+                                   "phase_poses_axial_again": True,
                                    "phase_poses_scale_implausible": bool(fit.get("odometry_scale_implausible"))}
         scale = 1.0 if fit.get("odometry_scale_implausible") else float(fit.get("odometry_scale", 1.0))
         return axial, scale
