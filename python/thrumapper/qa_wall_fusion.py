@@ -968,25 +968,20 @@ class qa_wall_fusion(gr_unittest.TestCase):
 
     def test_final_adjustment_ranges_the_axial_landmark_again(self):
         """Before the last adjustment the axial landmark is ranged again with the mapped
-        walls across the axis left in the profile (the refiner's AXIAL_EXCLUDE_ACROSS_DEG set
-        to PHASE_POSES_AXIAL_ACROSS_DEG for that ranging only), and the odometry's scale is
+        walls across the axis left in the profile (_axial_landmarks' across_deg
+        PHASE_POSES_AXIAL_ACROSS_DEG for that ranging only), and the odometry's scale is
         that of one more adjustment on those ranges, its implausible-scale latch fresh; the
         rounds' fit and latch are left as they were. Where the rounds' landmark holds more
         ranges (27 against 22 here), its ranges and the rounds' scale stand."""
         fusion = WallFusion(RADAR, exact_settings(correct_poses=False))
-
-        class Refiner:
-            AXIAL_EXCLUDE_ACROSS_DEG = None
-
-        fusion.refiner = Refiner()
         rounds_axial = [{"sign": -1.0, "ranges": [(g, 3.0 + 0.2 * g) for g in range(27)], "position_m": -3.0,
                          "rate": 1.0}]
         settings_seen = []
 
         def ranged_on(count):
-            def axial_landmarks(state, poses, wall_cls, previous=()):
+            def axial_landmarks(state, poses, wall_cls, previous=(), across_deg=None):
                 self.assertIs(previous, rounds_axial)  # the rounds' landmark is ranged again
-                settings_seen.append(fusion.refiner.AXIAL_EXCLUDE_ACROSS_DEG)
+                settings_seen.append(across_deg)
                 return [{"sign": -1.0, "ranges": [(g, 3.0 + 0.2 * g) for g in range(count)], "position_m": -3.0,
                          "rate": 1.0}]
             return axial_landmarks
@@ -1009,7 +1004,6 @@ class qa_wall_fusion(gr_unittest.TestCase):
             self.assertTrue(fusion._scale_latched)
         self.assertEqual(settings_seen, [WallFusion.PHASE_POSES_AXIAL_ACROSS_DEG] * 2)
         self.assertEqual(WallFusion.PHASE_POSES_AXIAL_ACROSS_DEG, 30.0)
-        self.assertNotIn("AXIAL_EXCLUDE_ACROSS_DEG", vars(fusion.refiner))  # back to the class's
 
     def test_dip_runs_and_their_place(self):
         """The dips along a line come in runs of neighbours within the merge distance, in

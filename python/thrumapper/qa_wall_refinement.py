@@ -1531,7 +1531,7 @@ class qa_wall_refinement(gr_unittest.TestCase):
         with the other mapped walls it takes most of its own echo with it: the profile then
         peaks 0.2 m or more off 3.0 m (at the edges of what the mapped echo removes). With
         the walls across the axis on the side looked at left in
-        (AXIAL_EXCLUDE_ACROSS_DEG = 30, what WallFusion's last adjustment ranges its axial
+        (across_deg = 30, what WallFusion's last adjustment ranges its axial
         landmark with) it peaks at 3.0 m to 2 cm, over 10 times its median, as with an
         empty map. Looking ahead (0), the wall behind is not across the axis on that side:
         projected out as before."""
@@ -1547,16 +1547,14 @@ class qa_wall_refinement(gr_unittest.TestCase):
         distances = np.arange(0.6, 8.0, 0.01)
         projected = refiner.axial_profile(0, math.pi, distances)
         self.assertGreater(abs(float(distances[np.argmax(projected)]) - 3.0), 0.2)
-        refiner.AXIAL_EXCLUDE_ACROSS_DEG = 30.0
-        left_in = refiner.axial_profile(0, math.pi, distances)
+        left_in = refiner.axial_profile(0, math.pi, distances, across_deg=30.0)
         peak = float(distances[np.argmax(left_in)])
         self.assertLess(abs(peak - 3.0), 0.02, peak)
         self.assertGreater(left_in.max() / np.median(left_in), 10.0)
         # ahead: the same basis as without the setting (the wall behind stays projected out)
-        refiner.AXIAL_EXCLUDE_ACROSS_DEG = None
         ahead_default = refiner.axial_profile(0, 0.0, distances)
-        refiner.AXIAL_EXCLUDE_ACROSS_DEG = 30.0
-        np.testing.assert_allclose(refiner.axial_profile(0, 0.0, distances), ahead_default, rtol=1e-9)
+        np.testing.assert_allclose(refiner.axial_profile(0, 0.0, distances, across_deg=30.0), ahead_default,
+                                   rtol=1e-9)
 
     def test_carrier_phase_measures_the_path_change_from_pose_to_pose(self):
         """A plasterboard wall (face y = -1 m) and the robot driven away from it at 3° to it,

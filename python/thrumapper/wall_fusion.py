@@ -393,6 +393,11 @@ def _peak_offset(y0, y1, y2):
     return 0.5 * (y0 - y2) / den if den < 0 else 0.0
 
 
+def _range_count(axial):
+    """The ranges the axial landmarks (WallFusion._axial_landmarks) hold, all together."""
+    return sum(len(a["ranges"]) for a in axial)
+
+
 def _path_length(poses):
     """(P,) distance along a trajectory of (P, 2+) poses from its first pose."""
     return np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))))
@@ -2611,15 +2616,15 @@ class WallFusion:
                     break
         return out
 
-    def _axial_landmarks(self, state, poses, wall_cls, previous=()):
+    def _axial_landmarks(self, state, poses, wall_cls, previous=(), across_deg=None):
         """Walls across the track, ahead of its end or behind its start, ranged from each pose
         on the CSI: the along-track landmarks the pose adjustment needs for the odometry's
         scale (walls along the track fix only the cross-track position and the heading).
 
         A corridor's end wall answers from ten metres and more, at delays beyond the
         estimator's range. Each pose's axial_profile (the CSI's energy from a wall across its
-        axis at each distance, the mapped walls projected out, or those along
-        the track only with CsiWallRefiner.AXIAL_EXCLUDE_ACROSS_DEG) votes for the along-track
+        axis at each distance, the mapped walls projected out, or with across_deg all but
+        those across the axis: CsiWallRefiner.axial_profile) votes for the along-track
         position of such a wall (distance travelled plus or minus the range); the
         best-supported position beyond each end is ranged pose by pose at its profile's peak
         near there. It need not be an end wall (anything across the corridor at one place
@@ -2649,7 +2654,7 @@ class WallFusion:
                 continue
             ratios = {}
             for g in range(P):
-                profile = self.refiner.axial_profile(g, 0.0 if sign > 0 else math.pi, distances)
+                profile = self.refiner.axial_profile(g, 0.0 if sign > 0 else math.pi, distances, across_deg)
                 if profile is not None:
                     ratios[g] = profile / max(float(np.median(profile)), 1e-300)
             if len(ratios) < self.AXIAL_MIN_POSES:
@@ -2833,7 +2838,7 @@ class WallFusion:
                 if moved_m < self.ADJUSTMENT_SETTLED_M:
                     break
             stats["axial_landmarks"] = len(axial)
-            stats["axial_ranges"] = sum(len(a["ranges"]) for a in axial)
+            stats["axial_ranges"] = _range_count(axial)
             stats["adjustment_rounds"] = rounds
             stats["adjustment_last_move_m"] = moved_m
             state, shifts, ghosts = refine(poses, shifts, ghosts)
@@ -2948,28 +2953,18 @@ class WallFusion:
     def _phase_poses_scale(self, det, odometry, poses, state, wall_cls, axial):
         """(axial, scale) for the last adjustment: the axial landmarks ranged again on the
         rounds' last map with the mapped walls across the axis left in the profile
-        (CsiWallRefiner.AXIAL_EXCLUDE_ACROSS_DEG = PHASE_POSES_AXIAL_ACROSS_DEG), and the
+        (_axial_landmarks' across_deg = PHASE_POSES_AXIAL_ACROSS_DEG), and the
         odometry's scale of one more adjustment on them (the rounds' fit, their stats and
         their implausible-scale latch left as they were); the rounds' landmarks and scale
         where those were ranged on more poses (a landmark once found is carried from round
         to round, so its ranges may be an earlier map's: the drifting office's seed 9, 27
         ranges then, 22 on the last map)."""
-        refiner = self.refiner
-        own = "AXIAL_EXCLUDE_ACROSS_DEG" in vars(refiner)
-        kept = refiner.AXIAL_EXCLUDE_ACROSS_DEG
-        refiner.AXIAL_EXCLUDE_ACROSS_DEG = self.PHASE_POSES_AXIAL_ACROSS_DEG
-        try:
-            found = self._axial_landmarks(state, poses, wall_cls, axial)
-        finally:
-            if own:
-                refiner.AXIAL_EXCLUDE_ACROSS_DEG = kept
-            else:
-                del refiner.AXIAL_EXCLUDE_ACROSS_DEG  # back to the class's setting
+        found = self._axial_landmarks(state, poses, wall_cls, axial, self.PHASE_POSES_AXIAL_ACROSS_DEG)
         again = found + [a for a in axial if a["sign"] not in {f["sign"] for f in found}]
-        if sum(len(a["ranges"]) for a in again) < sum(len(a["ranges"]) for a in axial):
+        if _range_count(again) < _range_count(axial):
             # the rounds' landmark, ranged in an earlier round on another map, was measured on
             # more poses: its ranges and the rounds' scale stand
-            self._phase_axial_stats = {"phase_poses_axial_ranges": sum(len(a["ranges"]) for a in axial),
+            self._phase_axial_stats = {"phase_poses_axial_ranges": _range_count(axial),
                                        "phase_poses_axial_again": False}
             rounds_fit = self._odometry_fit
             return axial, float(rounds_fit["odometry_scale"]) if rounds_fit else 1.0
@@ -2981,7 +2976,7 @@ class WallFusion:
             fit = self._odometry_fit or {}
         finally:
             self._odometry_fit, self._scale_latched = kept_fit, kept_latch
-        self._phase_axial_stats = {"phase_poses_axial_ranges": sum(len(a["ranges"]) for a in axial),
+        self._phase_axial_stats = {"phase_poses_axial_ranges": _range_count(axial),
                                    "phase_poses_axial_again": True,
                                    "phase_poses_scale_implausible": bool(fit.get("odometry_scale_implausible"))}
         scale = 1.0 if fit.get("odometry_scale_implausible") else float(fit.get("odometry_scale", 1.0))
@@ -3002,7 +2997,7 @@ class WallFusion:
         if self.PHASE_POSES_AXIAL_ACROSS_DEG is not None and self.refiner is not None:
             axial, scale = self._phase_poses_scale(det, odometry, poses, state, wall_cls, axial)
         if self.PHASE_POSES_SCALE_MIN_AXIAL_RANGES is not None and \
-                sum(len(a["ranges"]) for a in axial) < self.PHASE_POSES_SCALE_MIN_AXIAL_RANGES:
+                _range_count(axial) < self.PHASE_POSES_SCALE_MIN_AXIAL_RANGES:
             scale = 1.0
         adjusted = self._adjust_poses(det, odometry, poses, state, wall_cls, axial, scale_at=scale,
                                       phase_sigma_m=self.PHASE_POSES_SIGMA_M,
@@ -3229,6 +3224,7 @@ class WallFusion:
         ph_walls = sorted({q[4] for q in phase})
         ph_free = np.array([ph_walls.index(q[4]) for q in phase], int)
         n_free = len(ph_walls)
+        free_prior = n_free if self.PHASE_STEP_FREE_SIGMA_M is not None else 0  # rows of their prior
         # the per-pose fits of one wall err in runs a few metres long (doors, partitions and
         # cabinets behind it, the other wall's echo): counted as white noise those runs would
         # bend the track after them. Each line carries a bias along it (knots every
@@ -3356,7 +3352,6 @@ class WallFusion:
                 out.extend(((b[1:] - rho * b[:-1]) / bias_step_sigma).tolist())
             return np.array(out) * row_weights[0]
 
-        free_prior = n_free if self.PHASE_STEP_FREE_SIGMA_M is not None else 0
         m = 3 * (P - 1) + 3 + 2 * len(obs_w) + 2 * len(obs_c) + ax_g.size + ph_g.size + free_prior + n_bias
         # the Jacobian's pattern, block by block as index arrays (a lil_matrix filled entry by
         # entry took most of the adjustment's time on a long survey)

@@ -1032,32 +1032,28 @@ class CsiWallRefiner:
         return np.where(norms > 0, captured / np.where(norms > 0, norms, 1.0), 0.0)
 
     # -- a wall across the end of the track ----------------------------------------------
-    #: axial_profile leaves in the echoes of mapped walls across the axis on the side it
-    #: looks (normals within this many degrees of it; None: every mapped wall projected out):
-    #: a wall there mapped from JADE's echoes is the very wall the profile ranges, and
-    #: projected out a few cm or degrees off it takes most of that echo with it
-    AXIAL_EXCLUDE_ACROSS_DEG = None
-
-    def axial_profile(self, g, aoa_rad, distances_m):
+    def axial_profile(self, g, aoa_rad, distances_m, across_deg=None):
         """The energy of group g's CSI that comes from a wall across the robot's axis d metres
-        from the arrays' midpoint, at each d: the mapped walls' echoes (but, with
-        AXIAL_EXCLUDE_ACROSS_DEG, those across the axis on the side looked at) and the
+        from the arrays' midpoint, at each d: the mapped walls' echoes (but, with across_deg,
+        those across the axis on the side looked at: normals within across_deg of it) and the
         cancelled direct path projected out, the rest beamformed at aoa_rad (robot frame; 0 ahead, π
         behind) and matched to the echo of such a wall seen from the RX centre: Σ_k w_k
         e^{-j2πf|R - I_k(d)|/c} over the TX elements' images I_k(d) in it (the TX beam's own
         group delay toward π is 0.37 ns on the ThruMapper radar, 5.6 cm of range: a focus
         on the TX centre's image alone ranged a metal wall 6 cm short). (D,), summed over
         the frames; None when g has no CSI. A far wall across a corridor is seen this way
-        from many metres away, where the estimator reports nothing (docs/mapping.md)."""
+        from many metres away, where the estimator reports nothing (docs/mapping.md). A wall
+        across the axis mapped from JADE's echoes is the very wall the profile ranges:
+        projected out a few cm or degrees off, it takes most of that echo with it."""
         if g not in self.poses:
             return None
         data = self.poses[g]
         exclude = None
-        if self.AXIAL_EXCLUDE_ACROSS_DEG is not None:
+        if across_deg is not None:
             pose = self.world_poses[g]
             u_world = bistatic.bearing_vector(pose[2] + aoa_rad)
             centre = bistatic.robot_to_world(0.5 * (self.tx_c + self.rx_c), pose).reshape(2)
-            cos_max = math.cos(math.radians(self.AXIAL_EXCLUDE_ACROSS_DEG))
+            cos_max = math.cos(math.radians(across_deg))
             exclude = [j for j, w in enumerate(self.walls)
                        if abs(float(np.asarray(w["normal"]) @ u_world)) >= cos_max
                        and float((np.asarray(w["centre"]) - centre) @ u_world) > 0.0]
