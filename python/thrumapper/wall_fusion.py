@@ -2931,13 +2931,24 @@ class WallFusion:
     PHASE_POSES_POSITION_SIGMA_M = None
     #: ...and the orientation noise there of the echoes of walls along the track (their
     #: fitted normal within PHASE_POSES_MAX_TILT_DEG of square to the heading; the others
-    #: keep csi_orientation_sigma_deg; None: all do). At 1° the 24 office surveys' line of
-    #: sight 0.091 -> 0.083 m and trajectories 0.093 -> 0.086 m (medians), skewed_walls the
-    #: same to a few mm, but the clean 10 m corridor of qa_wall_refinement's carrier-phase
-    #: tests turns 11 mrad (0.11 m off at its end, 0.05 m allowed): the fitted orientations'
-    #: bias, not the heading. Off (docs/mapping.md, "The axial landmark behind a wall
-    #: mapped across it")
-    PHASE_POSES_ORIENTATION_SIGMA_DEG = None
+    #: keep csi_orientation_sigma_deg; None: all do), less one common bias of theirs
+    #: estimated with the poses where PHASE_POSES_ORIENTATION_BIAS (with the lean, a bias
+    #: per side of the track). The fits' orientations there are biased by a degree or two
+    #: (the corridor's double bounces: the clean 10 m corridor of qa_wall_refinement's
+    #: carrier-phase tests, north wall +2.3°, south +0.3°), and weighted at 1° without the
+    #: bias they turned that corridor 11 mrad (0.11 m off at its end); with it, 5 mm. Their
+    #: scatter about the bias is 1-3° per echo on the office surveys; weighted at 1° they
+    #: hold the map's rotation where the wheels' heading walks off in the first metres.
+    #: 24 office surveys, medians (means): line of sight 0.091 -> 0.084 m (0.095 -> 0.089),
+    #: trajectories 0.093 -> 0.082 m (0.095 -> 0.089), 15 of 24 within 0.10 m (16), the
+    #: maps' turn 6.7 -> 5.7 mrad RMS; hidden 0.092 m (0.122 -> 0.120); skewed_walls line
+    #: of sight 0.104 -> 0.094 m, trajectories 0.035 -> 0.039 m (0.048 -> 0.043). At 0.5°
+    #: the office medians gain more (0.079 m, 0.079 m) but single maps lose 2-3 cm, and
+    #: the clean corridor mapped with the phase steps in the rounds (PHASE_STEP_SIGMA_M)
+    #: ends 1.2° and 7 cm off (0.8°, 2.7 cm at 1°) (docs/mapping.md, "The echoes'
+    #: orientation bias in the last adjustment")
+    PHASE_POSES_ORIENTATION_SIGMA_DEG = 1.0
+    PHASE_POSES_ORIENTATION_BIAS = True
     #: ...and, where not None, its odometry scale from the axial landmarks ranged once more
     #: with the mapped walls across the axis within this many degrees left in the profile
     #: (_phase_poses_scale): a wall across the track that the rounds mapped from JADE's
@@ -3004,7 +3015,8 @@ class WallFusion:
                                       phase_max_tilt_deg=self.PHASE_POSES_MAX_TILT_DEG,
                                       heading_sigma_deg=self.PHASE_POSES_HEADING_SIGMA_DEG,
                                       position_sigma_m=self.PHASE_POSES_POSITION_SIGMA_M,
-                                      orientation_sigma_deg=self.PHASE_POSES_ORIENTATION_SIGMA_DEG)
+                                      orientation_sigma_deg=self.PHASE_POSES_ORIENTATION_SIGMA_DEG,
+                                      orientation_bias=self.PHASE_POSES_ORIENTATION_BIAS)
         self._phase_fit = dict(self._odometry_fit or {})
         self._odometry_fit = rounds_fit
         # no wall along the track held its echo from pose to pose: the phase has nothing to
@@ -3061,6 +3073,9 @@ class WallFusion:
             result.stats["phase_poses_steps"] = self._phase_fit["adjustment_phase_steps"]
             result.stats["phase_poses_scale"] = self._phase_fit["odometry_scale"]
             result.stats["phase_poses_moved_m"] = float(np.max(np.hypot(*(new[:, :2] - old[:, :2]).T)))
+            result.stats["phase_poses_lean_deg"] = self._phase_fit.get("orientation_lean_deg")
+            if "orientation_bias_deg" in self._phase_fit:
+                result.stats["phase_poses_orientation_bias_deg"] = self._phase_fit["orientation_bias_deg"]
             result.stats.update(self._phase_axial_stats)
 
     def _sequential_poses(self, det, odometry, shifts, ghosts):
@@ -3159,7 +3174,8 @@ class WallFusion:
 
     def _adjust_poses(self, det, odometry, poses, state, wall_cls, axial=(), drift_held=None, scale_held=False,
                       without_phase=False, scale_at=None, phase_sigma_m=None, phase_max_tilt_deg=None,
-                      heading_sigma_deg=None, position_sigma_m=None, orientation_sigma_deg=None):
+                      heading_sigma_deg=None, position_sigma_m=None, orientation_sigma_deg=None,
+                      orientation_bias=False):
         """Least-squares adjustment of every pose with the line-of-sight walls, corners and
         axial landmarks (_axial_landmarks: walls across the track, ranged on the CSI) as
         landmarks, the walls' path changes from pose to pose on the carrier's phase where
@@ -3173,7 +3189,8 @@ class WallFusion:
         phase_max_tilt_deg of the track (_phase_steps; both for _phase_poses);
         orientation_sigma_deg: the orientation noise of the echoes whose fitted normal lies
         within phase_max_tilt_deg of square to the heading (walls along the track), the
-        others at csi_orientation_sigma_deg (for _phase_poses)."""
+        others at csi_orientation_sigma_deg (for _phase_poses); orientation_bias: those echoes'
+        orientations less one common bias, a free unknown (PHASE_POSES_ORIENTATION_BIAS)."""
         from scipy.sparse import coo_matrix
 
         s = self.settings
@@ -3225,6 +3242,7 @@ class WallFusion:
         ph_free = np.array([ph_walls.index(q[4]) for q in phase], int)
         n_free = len(ph_walls)
         free_prior = n_free if self.PHASE_STEP_FREE_SIGMA_M is not None else 0  # rows of their prior
+        n_obias = 1 if (orientation_bias and self._fits_on_csi and obs_w) else 0
         # the per-pose fits of one wall err in runs a few metres long (doors, partitions and
         # cabinets behind it, the other wall's echo): counted as white noise those runs would
         # bend the track after them. Each line carries a bias along it (knots every
@@ -3257,7 +3275,7 @@ class WallFusion:
                              np.array([[math.atan2(walls[k]["normal"][1], walls[k]["normal"][0]),
                                         walls[k]["centre"] @ walls[k]["normal"]] for k in line_rep]).reshape(-1),
                              np.array([c for c, _ in landmarks]).reshape(-1), np.array(ax_lines).reshape(-1),
-                             np.zeros(n_bias), np.zeros(n_free), [0.0],
+                             np.zeros(n_bias), np.zeros(n_free), np.zeros(n_obias), [0.0],
                              [1.0 if scale_at is None else scale_at, 0.0 if drift_held is None else drift_held]])
         n_fixed = n_pose + n_wall + n_corner + n_axial  # the knots follow
         steps = [_relative(odometry[g - 1], odometry[g]) for g in range(1, P)]
@@ -3285,11 +3303,16 @@ class WallFusion:
         lean_side = normals_r[obs_w_arr, 1] if (obs_w and s.orientation_lean) else np.zeros(len(obs_w))
         lean_prior = math.radians(self.ORIENTATION_LEAN_SIGMA_DEG)
         sigma_o = np.full(len(obs_w), sigma_o)
-        if orientation_sigma_deg is not None and self._fits_on_csi and obs_w:
-            # only the echoes of walls along the track (within phase_max_tilt_deg of it):
-            # an oblique wall's fitted orientation is biased by the walls beside it
+        along_track = np.zeros(len(obs_w), bool)
+        if self._fits_on_csi and obs_w:
+            # the echoes of walls along the track (within phase_max_tilt_deg of it): an
+            # oblique wall's fitted orientation is biased by the walls beside it
             tilt = math.sin(math.radians(90.0 if phase_max_tilt_deg is None else phase_max_tilt_deg))
-            sigma_o[np.abs(normals_r[obs_w_arr, 0]) <= tilt] = math.radians(orientation_sigma_deg)
+            along_track = np.abs(normals_r[obs_w_arr, 0]) <= tilt
+        if orientation_sigma_deg is not None and obs_w:
+            sigma_o[along_track] = math.radians(orientation_sigma_deg)
+        obias_on = along_track.astype(float) if n_obias else np.zeros(len(obs_w))
+        obias_prior = math.radians(self.ORIENTATION_LEAN_SIGMA_DEG)
 
         def unpack(x):
             ps = np.vstack((first, x[:n_pose].reshape(-1, 3)))
@@ -3321,6 +3344,9 @@ class WallFusion:
                                    _wrap(b[:, 2] - a[:, 2] - steps_arr[:, 2] + drift * step_len) / sig_h))
             out = odo.reshape(-1).tolist()
             out.extend([(scale - scale_centre) / prior[0], (drift - drift_centre) / prior[1], lean / lean_prior])
+            obias = x[n_fixed + n_bias + n_free] if n_obias else 0.0
+            if n_obias:
+                out.append(obias / obias_prior)
             if obs_w:
                 pw, nw = self._to_world(points_r[obs_w_arr], normals_r[obs_w_arr], ps, group[obs_w_arr])
                 phi = wl[slot_of, 0]
@@ -3331,7 +3357,8 @@ class WallFusion:
                 # points alone leave it free along parallel walls); loosely, as the
                 # estimator's angle errors bias them. Less the lean: a turn by the normal's
                 # y in the robot frame, one way for walls on the left, the other on the right
-                out.extend((_wrap(np.arctan2(nw[:, 1], nw[:, 0]) - phi - lean * lean_side) / sigma_o).tolist())
+                out.extend((_wrap(np.arctan2(nw[:, 1], nw[:, 0]) - phi - lean * lean_side - obias * obias_on)
+                            / sigma_o).tolist())
             if len(obs_c):
                 pw, _ = self._to_world(points_r[obs_c_arr], normals_r[obs_c_arr], ps, group[obs_c_arr])
                 out.extend(((pw - cr[obs_c_lm]) / sigma_c).reshape(-1).tolist())
@@ -3352,7 +3379,7 @@ class WallFusion:
                 out.extend(((b[1:] - rho * b[:-1]) / bias_step_sigma).tolist())
             return np.array(out) * row_weights[0]
 
-        m = 3 * (P - 1) + 3 + 2 * len(obs_w) + 2 * len(obs_c) + ax_g.size + ph_g.size + free_prior + n_bias
+        m = 3 * (P - 1) + 3 + n_obias + 2 * len(obs_w) + 2 * len(obs_c) + ax_g.size + ph_g.size + free_prior + n_bias
         # the Jacobian's pattern, block by block as index arrays (a lil_matrix filled entry by
         # entry took most of the adjustment's time on a long survey)
         rows_at, cols_at = [], []
@@ -3375,6 +3402,10 @@ class WallFusion:
         row = 3 * (P - 1)
         entries([row, row + 1, row + 2], [[x0.size - 2], [x0.size - 1], [x0.size - 3]])
         row += 3
+        obias_col = n_fixed + n_bias + n_free
+        if n_obias:
+            entries([row], [[obias_col]])
+            row += 1
         g_w = group[obs_w_arr]
         for orientations in (False, True):  # distances, then orientations
             rows = row + np.arange(len(obs_w))
@@ -3382,6 +3413,8 @@ class WallFusion:
             entries(rows, n_pose + 2 * slot_of[:, None] + np.arange(2)[None, :])
             if orientations:
                 entries(rows, [[x0.size - 3]])
+                if n_obias:
+                    entries(rows[along_track], [[obias_col]])
             if n_bias and not orientations:
                 entries(rows, n_fixed + knot_i)
             row += len(obs_w)
@@ -3487,6 +3520,8 @@ class WallFusion:
                               "odometry_systematic_held": held, "odometry_scale_implausible": implausible,
                               "adjustment_optimality": float(solution.optimality),
                               "orientation_lean_deg": math.degrees(float(lean)), "adjustment_phase_steps": int(ph_g.size)}
+        if n_obias:
+            self._odometry_fit["orientation_bias_deg"] = math.degrees(float(x[n_fixed + n_bias + n_free]))
         return ps
 
     def _bistatic_lengths(self, poses, normals, offsets):
