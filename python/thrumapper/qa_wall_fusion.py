@@ -966,6 +966,65 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertEqual(scale_with([]), 1.0)
         self.assertEqual(scale_with([], PHASE_POSES_SCALE_MIN_AXIAL_RANGES=None), 0.985)
 
+    def test_axial_phase_scale_with_the_double_bounces(self):
+        """_axial_phase_scale on a stand-in refiner whose gain on the echo of a wall across
+        the axis, 3 m behind the first pose, is the sum of that wall's echo and of its double
+        bounces with the corridor walls 1 m to either side (TX -> side wall -> end wall ->
+        RX: a path of sqrt((2d)^2 + (2w)^2) for a wall d away and w to the side, 1.5 and 0.8
+        times as strong), at the true distances; the wheels report 1 % too far. The fit,
+        the doubles in its model, finds the true scale (1/1.01) to 2e-5, and to 3e-4 when the
+        landmark's ranges (which place the wall) are 5 cm long. (On the office surveys the
+        phase of the wall's echo alone says the path grows 1-10 mm a step less than it
+        does: the doubles' paths grow slower.) Where
+        the nearer and the further half of the poses disagree by more than
+        AXIAL_PHASE_AGREE (the further half's wall 0.6 % slower here) no scale is taken;
+        nor with fewer than AXIAL_PHASE_MIN_POSES poses in range."""
+        fusion = WallFusion(RADAR, exact_settings(correct_poses=False))
+        poses = straight_poses(0.0, 19.8)
+        odometry = poses.copy()
+        odometry[:, 0] *= 1.01
+        wall_x = -3.0
+        k = 2.0 * math.pi * RADAR.carrier_hz / bistatic.SPEED_OF_LIGHT_M_S
+        mid = fusion.robot_c
+
+        class StandIn:
+            far_rate = 1.0  # the further half's range grows this much slower
+
+            def axial_gain(self, g, aoa_rad, distance_m, across_deg=None):
+                self_test.assertAlmostEqual(aoa_rad, math.pi)  # behind
+                true_m = poses[g, 0] + mid[0] - wall_x
+                if true_m > 9.0:
+                    true_m = 9.0 + (true_m - 9.0) * self.far_rate
+                paths = [(1.0, 2.0 * true_m)] + [(a, math.hypot(2.0 * true_m, 2.0 * (1.0 - side * mid[1])))
+                                                  for a, side in ((1.5, 1.0), (0.8, -1.0))]
+                return complex(sum(a * np.exp(-1j * k * (p - 2.0 * distance_m)) for a, p in paths))
+
+        self_test = self
+        fusion.refiner = StandIn()
+        walls = [{"centre": np.array([10.0, y]), "normal": np.array([0.0, -np.sign(y)]), "direction": np.array([1.0, 0.0]),
+                  "t0": -14.0, "t1": 14.0} for y in (1.0, -1.0)]
+        state = {"walls": walls}
+        def landmark(long_m):  # its ranges, from the true distances
+            return [{"sign": -1.0, "ranges": [(g, float(poses[g, 0] + mid[0] - wall_x + long_m)) for g in range(40)],
+                     "position_m": -3.0, "rate": 1.0}]
+
+        for long_m, tolerance in ((0.0, 2e-5), (0.05, 3e-4)):
+            scale, stats = fusion._axial_phase_scale(odometry, poses, state, [LOS, LOS], landmark(long_m))
+            self.assertIsNotNone(scale, stats)
+            self.assertAlmostEqual(scale, 1.0 / 1.01, delta=tolerance)
+            self.assertIn(stats["phase_poses_axial_phase_poses"], range(55, 62))  # 3-15 m from the wall
+        axial = landmark(0.05)
+        fusion.refiner.far_rate = 0.994
+        scale, stats = fusion._axial_phase_scale(odometry, poses, state, [LOS, LOS], axial)
+        self.assertIsNone(scale, stats)
+        self.assertGreater(abs(stats["phase_poses_axial_phase_halves"][0] - stats["phase_poses_axial_phase_halves"][1]),
+                           WallFusion.AXIAL_PHASE_AGREE)
+        fusion.refiner.far_rate = 1.0
+        fusion.AXIAL_PHASE_MAX_M = 7.0  # 21 poses within 3-7 m: enough; 5 m: not
+        self.assertIsNotNone(fusion._axial_phase_scale(odometry, poses, state, [LOS, LOS], axial)[0])
+        fusion.AXIAL_PHASE_MAX_M = 5.0
+        self.assertIsNone(fusion._axial_phase_scale(odometry, poses, state, [LOS, LOS], axial)[0])
+
     def test_final_adjustment_ranges_the_axial_landmark_again(self):
         """Before the last adjustment the axial landmark is ranged again with the mapped
         walls across the axis left in the profile (_axial_landmarks' across_deg

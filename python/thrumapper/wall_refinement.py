@@ -1045,6 +1045,31 @@ class CsiWallRefiner:
         from many metres away, where the estimator reports nothing (docs/mapping.md). A wall
         across the axis mapped from JADE's echoes is the very wall the profile ranges:
         projected out a few cm or degrees off, it takes most of that echo with it."""
+        beam = self._axial_beam(g, aoa_rad, across_deg)
+        if beam is None:
+            return None
+        data = self.poses[g]
+        echo, norm = self._axial_echoes(float(aoa_rad), np.asarray(distances_m, float), data.model.weights)
+        return np.sum(np.abs(beam @ echo.conj().T) ** 2, axis=0) / np.maximum(norm, 1e-300)
+
+    def axial_gain(self, g, aoa_rad, distance_m, across_deg=None):
+        """The complex gain of group g's CSI on the echo of a wall across the robot's axis
+        distance_m from the arrays' midpoint (axial_profile's match at one distance, summed
+        over the frames, normalised by the echo's energy), or None when g has no CSI. Its
+        phase is -2π/λ times the true path's excess over the modelled one (2 * distance_m),
+        plus the wall's reflection and the chains' phases, which stay the same from pose to
+        pose: the carrier phase of the distance travelled (WallFusion._axial_phase_scale)."""
+        beam = self._axial_beam(g, aoa_rad, across_deg)
+        if beam is None:
+            return None
+        data = self.poses[g]
+        echo, norm = self._axial_echoes(float(aoa_rad), np.array([float(distance_m)]), data.model.weights)
+        return complex(np.sum(beam @ echo[0].conj()) / max(float(norm[0]), 1e-300))
+
+    def _axial_beam(self, g, aoa_rad, across_deg=None):
+        """(F, N): group g's CSI with the mapped walls' echoes (but, with across_deg, those
+        across the axis on the side looked at) and the cancelled direct path projected out,
+        beamformed at aoa_rad (robot frame); None when g has no CSI."""
         if g not in self.poses:
             return None
         data = self.poses[g]
@@ -1063,9 +1088,7 @@ class CsiWallRefiner:
         residual = residual.reshape(residual.shape[0], m, -1)
         u = bistatic.bearing_vector(aoa_rad)
         space = np.exp(2j * np.pi * np.outer(self._rx_rel @ u, self.freqs_hz) / C) * self._sys  # (M, N)
-        beam = np.einsum("fmn,mn->fn", residual, space.conj())  # (F, N)
-        echo, norm = self._axial_echoes(float(aoa_rad), np.asarray(distances_m, float), data.model.weights)
-        return np.sum(np.abs(beam @ echo.conj().T) ** 2, axis=0) / np.maximum(norm, 1e-300)
+        return np.einsum("fmn,mn->fn", residual, space.conj())
 
     def _axial_echoes(self, aoa_rad, distances_m, weights):
         """(D, N) echoes of walls across the axis at the RX centre (robot frame, the same for
