@@ -977,7 +977,7 @@ class WallFusion:
         self._labelled_facing = set()  # walls labelled mostly against walls facing their way (_estimate_materials)
         self._tx_gains_db = {}  # _tx_gain_db's, by direction
         self._phase_fit = None  # the carrier phase's adjustment (_phase_poses), set by build_map
-        self._phase_axial_stats = {}  # _phase_poses_scale's ranges and verdict
+        self._phase_axial_stats = {}  # _phase_poses_scale's ranges and verdict, _axial_phase_scale's fit
         self.counts = {"messages": 0, "paths": 0, "skipped_nonfinite": 0, "skipped_early": 0, "skipped_far": 0,
                        "skipped_weak": 0}
 
@@ -3016,7 +3016,7 @@ class WallFusion:
         """(scale or None, stats): the odometry's scale from the carrier phase of the axial
         landmarks' echo (PHASE_POSES_AXIAL_PHASE).
 
-        At each pose between AXIAL_PHASE_MIN_M and AXIAL_MAX_M from the wall (its range at
+        At each pose between AXIAL_PHASE_MIN_M and AXIAL_PHASE_MAX_M from the wall (its range at
         the first pose from the landmark's ranges, the wheels' distance after it), the CSI's
         complex gain on the wall's echo at that range (CsiWallRefiner.axial_gain, the mapped
         walls across the axis left in) is fitted, over all those poses at once, with the
@@ -3146,7 +3146,6 @@ class WallFusion:
         if self.PHASE_POSES_SCALE_MIN_AXIAL_RANGES is not None and \
                 _range_count(axial) < self.PHASE_POSES_SCALE_MIN_AXIAL_RANGES:
             scale = 1.0
-        self._phase_axial_stats = dict(self._phase_axial_stats)
         if self.PHASE_POSES_AXIAL_PHASE and self.refiner is not None and axial:
             found = self._axial_phase_scale(odometry, poses, state, wall_cls, axial)
             self._phase_axial_stats.update(found[1])
@@ -3453,8 +3452,8 @@ class WallFusion:
             along_track = np.abs(normals_r[obs_w_arr, 0]) <= tilt
         if orientation_sigma_deg is not None and obs_w:
             sigma_o[along_track] = math.radians(orientation_sigma_deg)
-        obias_on = along_track.astype(float) if n_obias else np.zeros(len(obs_w))
-        obias_prior = math.radians(self.ORIENTATION_LEAN_SIGMA_DEG)
+        obias_on = along_track.astype(float)
+        obias_col = n_fixed + n_bias + n_free  # the orientation bias, where n_obias
 
         def unpack(x):
             ps = np.vstack((first, x[:n_pose].reshape(-1, 3)))
@@ -3486,9 +3485,9 @@ class WallFusion:
                                    _wrap(b[:, 2] - a[:, 2] - steps_arr[:, 2] + drift * step_len) / sig_h))
             out = odo.reshape(-1).tolist()
             out.extend([(scale - scale_centre) / prior[0], (drift - drift_centre) / prior[1], lean / lean_prior])
-            obias = x[n_fixed + n_bias + n_free] if n_obias else 0.0
+            obias = x[obias_col] if n_obias else 0.0
             if n_obias:
-                out.append(obias / obias_prior)
+                out.append(obias / lean_prior)  # the lean's prior
             if obs_w:
                 pw, nw = self._to_world(points_r[obs_w_arr], normals_r[obs_w_arr], ps, group[obs_w_arr])
                 phi = wl[slot_of, 0]
@@ -3544,7 +3543,6 @@ class WallFusion:
         row = 3 * (P - 1)
         entries([row, row + 1, row + 2], [[x0.size - 2], [x0.size - 1], [x0.size - 3]])
         row += 3
-        obias_col = n_fixed + n_bias + n_free
         if n_obias:
             entries([row], [[obias_col]])
             row += 1
@@ -3663,7 +3661,7 @@ class WallFusion:
                               "adjustment_optimality": float(solution.optimality),
                               "orientation_lean_deg": math.degrees(float(lean)), "adjustment_phase_steps": int(ph_g.size)}
         if n_obias:
-            self._odometry_fit["orientation_bias_deg"] = math.degrees(float(x[n_fixed + n_bias + n_free]))
+            self._odometry_fit["orientation_bias_deg"] = math.degrees(float(x[obias_col]))
         return ps
 
     def _bistatic_lengths(self, poses, normals, offsets):
