@@ -1777,5 +1777,57 @@ class qa_wall_refinement(gr_unittest.TestCase):
         for end in (ends[0].start_m, ends[0].end_m):
             self.assertLess(abs(end[0] + 2.925), 0.3, ends[0])
 
+    def test_line_of_sight_fits_with_the_leak_estimated_again(self):
+        """office_floor on seed 9, whose TX chains leave a direct-path leak of about -11 dB.
+        The fusion's first estimate of it, made on the first map (no north corridor wall in
+        it: JADE reports few of its echoes), reads -9.9 dB, under the -9 dB bar: part of it is
+        the corridor walls' own echo, the same at every pose as the leak is, and it is not
+        modelled. Left out, the leak pulls the south corridor wall's fits short: its echoes
+        (away from the doors) lie 9.7 cm inside the face, measured from the map's own poses
+        (so that the poses' own error is not counted). Estimated again after the adjustment
+        rounds with the side walls in the map (WallFusion.LOS_LEAK_AGAIN) the leak reads
+        -11.4 dB, over the -15 dB bar, and with the line-of-sight walls' fits and the last
+        adjustment made with it those echoes lie 4.7 cm inside (the corridor's double
+        bounces, not modelled, pull them about 4 cm), the first estimate still left out of
+        every other step."""
+        data = scene_data("office_floor")
+        data["seed"] = 9
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+        with tempfile.TemporaryDirectory() as tmp:
+            _, info = cli_map.map_survey(written_survey(tmp, sc, res, res.poses_odometry), system_delay_s=31e-9,
+                                         keep_results=True, build=False)
+        fusion = info["fusion"]
+        true_poses = sc.poses
+        # the south face at y = -1, its door leaves 5.5 cm behind it: echoes near a door left out
+        doors_x = np.array([0.8, 4.8, 8.8, 12.8, 16.8])
+
+        def south_offset(fused):  # mean distance of the south wall's echoes inside its face, m
+            points = fused.to_geojson()
+            pts = np.vstack([np.asarray(f["geometry"]["coordinates"], float).reshape(-1, 2)
+                             for f in points["features"] if f["properties"].get("kind") == "detections"
+                             and f["properties"]["class"] == "line_of_sight"])
+            near = (np.abs(pts[:, 1] + 1.0) < 0.3) & (pts[:, 0] > 0.0) & (pts[:, 0] < 20.0) & \
+                (np.min(np.abs(pts[:, 0, None] - doors_x[None, :]), axis=1) > 0.6)
+            pts = pts[near]
+            path_y = np.interp(pts[:, 0], fused.trajectory[:, 0], fused.trajectory[:, 1])
+            true_y = np.interp(pts[:, 0], true_poses[:, 0], true_poses[:, 1])
+            self.assertGreater(pts.shape[0], 30)
+            return float(np.mean((path_y - pts[:, 1]) - (true_y + 1.0)) * -1.0)
+
+        fusion.LOS_LEAK_AGAIN = False
+        without = fusion.build_map()
+        fusion.LOS_LEAK_AGAIN = True
+        fused = fusion.build_map()
+        self.assertFalse(fused.stats["direct_leak_modelled"], fused.stats)
+        self.assertTrue(fused.stats["los_leak_modelled"], fused.stats)
+        self.assertTrue(-15.0 <= fused.stats["los_leak_db"] < -9.0, fused.stats)
+        self.assertNotIn("los_leak_db", without.stats)
+        short_without, short_with = south_offset(without), south_offset(fused)
+        self.assertGreater(short_without, 0.08, (short_without, short_with))
+        self.assertLess(short_with, 0.065, (short_without, short_with))
+        self.assertGreater(short_without - short_with, 0.035, (short_without, short_with))
+
+
 if __name__ == "__main__":
     gr_unittest.run(qa_wall_refinement)
