@@ -1803,17 +1803,15 @@ class qa_wall_refinement(gr_unittest.TestCase):
         doors_x = np.array([0.8, 4.8, 8.8, 12.8, 16.8])
 
         def south_offset(fused):  # mean distance of the south wall's echoes inside its face, m
-            points = fused.to_geojson()
-            pts = np.vstack([np.asarray(f["geometry"]["coordinates"], float).reshape(-1, 2)
-                             for f in points["features"] if f["properties"].get("kind") == "detections"
-                             and f["properties"]["class"] == "line_of_sight"])
+            pts = np.asarray(fused.detections["line_of_sight"], float)
             near = (np.abs(pts[:, 1] + 1.0) < 0.3) & (pts[:, 0] > 0.0) & (pts[:, 0] < 20.0) & \
                 (np.min(np.abs(pts[:, 0, None] - doors_x[None, :]), axis=1) > 0.6)
             pts = pts[near]
             path_y = np.interp(pts[:, 0], fused.trajectory[:, 0], fused.trajectory[:, 1])
             true_y = np.interp(pts[:, 0], true_poses[:, 0], true_poses[:, 1])
             self.assertGreater(pts.shape[0], 30)
-            return float(np.mean((path_y - pts[:, 1]) - (true_y + 1.0)) * -1.0)
+            # the true path's distance to the face less the map's path's to the echo
+            return float(np.mean((true_y + 1.0) - (path_y - pts[:, 1])))
 
         fusion.LOS_LEAK_AGAIN = False
         without = fusion.build_map()

@@ -36,9 +36,9 @@ What it does with a survey (each step is in docs/mapping.md with its reasons):
    and the odometry increments as constraints (scipy).
 """
 
+import contextlib
 import dataclasses
 import json
-import contextlib
 import math
 import threading
 import time
@@ -2538,20 +2538,27 @@ class WallFusion:
         return found
 
     @contextlib.contextmanager
+    def _leaks_restored(self, groups):
+        """Within it the refiner's leaks at these groups may change; after it they are as
+        they were (CsiWallRefiner.estimate_direct_leak sets every group's)."""
+        kept = {g: self.refiner.poses[g].leak for g in groups}
+        try:
+            yield
+        finally:
+            for g, leak in kept.items():
+                self.refiner.poses[g].leak = leak
+
+    @contextlib.contextmanager
     def _leaks_swapped(self, leaks, groups):
         """Within it, the refiner's fits at these groups model the leaks `leaks` gives (by
         group: _los_leak_again's); left as they were when `leaks` is None."""
         if leaks is None:
             yield
             return
-        kept = {g: self.refiner.poses[g].leak for g in groups}
-        try:
-            for g in kept:
+        with self._leaks_restored(groups):
+            for g in groups:
                 self.refiner.poses[g].leak = leaks.get(g)
             yield
-        finally:
-            for g, leak in kept.items():
-                self.refiner.poses[g].leak = leak
 
     def _los_leak_again(self, state, poses):
         """The direct path's leak estimated again on this map with its side walls found on
@@ -2567,14 +2574,12 @@ class WallFusion:
         _, wall_cls = self._classify(state)
         side_walls = self._side_walls(state, poses, wall_cls)
         self._refiner_map(state, poses, wall_cls, side_walls)
-        first = {g: data.leak for g, data in self.refiner.poses.items()}
-        leak_db = self.refiner.estimate_direct_leak()
-        if leak_db is not None and leak_db >= self.LOS_LEAK_AGAIN_MIN_DB:
-            self._los_leaks = {g: data.leak for g, data in self.refiner.poses.items()}
-            for g, entries in self._fit_cache.items():
-                self._fit_cache[g] = [e for e in entries if e[2] != LOS]
-        for g, leak in first.items():
-            self.refiner.poses[g].leak = leak
+        with self._leaks_restored(self.refiner.poses):
+            leak_db = self.refiner.estimate_direct_leak()
+            if leak_db is not None and leak_db >= self.LOS_LEAK_AGAIN_MIN_DB:
+                self._los_leaks = {g: data.leak for g, data in self.refiner.poses.items()}
+                for g, entries in self._fit_cache.items():
+                    self._fit_cache[g] = [e for e in entries if e[2] != LOS]
         self._line_gains = {}
         return leak_db
 
