@@ -32,6 +32,17 @@ def exact_settings(**changes):
     return FusionSettings(material=None, **changes)  # exact echoes have no slab shift
 
 
+def two_wall_state(poses, first, second):
+    """The map state _classify takes for two walls, each (wall dict, the group of each of
+    its echoes, the echoes' reflection points), its echoes crossing nothing."""
+    (wall_a, groups_a, points_a), (wall_b, groups_b, points_b) = first, second
+    n_a, n = len(groups_a), len(groups_a) + len(groups_b)
+    return {"walls": [dict(wall_a, members=np.arange(n_a)), dict(wall_b, members=np.arange(n_a, n))],
+            "labels": np.array([0] * n_a + [1] * len(groups_b)), "crossings": [[] for _ in range(n)],
+            "blocked": np.zeros(n, bool), "poses": poses, "group": np.array(groups_a + groups_b),
+            "pw": np.array(points_a + points_b)}
+
+
 def wall_near(fused, y, cls=None):
     candidates = [w for w in fused.walls if cls is None or w.cls == cls]
     return min(candidates, key=lambda w: abs(0.5 * (w.start_m[1] + w.end_m[1]) - y))
@@ -469,13 +480,7 @@ class qa_wall_fusion(gr_unittest.TestCase):
 
         def classes(fusion, piece_x0, piece_x1):
             """The classes of the 16 m corridor wall (y = -1) and a piece at y = -0.5."""
-            (corridor, g_c, p_c), (piece, g_p, p_p) = wall(0.0, 16.0, -1.0), wall(piece_x0, piece_x1, -0.5)
-            n_c, n = len(g_c), len(g_c) + len(g_p)
-            state = {"walls": [dict(corridor, members=np.arange(n_c)), dict(piece, members=np.arange(n_c, n))],
-                     "labels": np.array([0] * n_c + [1] * len(g_p)), "crossings": [[] for _ in range(n)],
-                     "blocked": np.zeros(n, bool), "poses": poses, "group": np.array(g_c + g_p),
-                     "pw": np.array(p_c + p_p)}
-            return fusion._classify(state)[1]
+            return fusion._classify(two_wall_state(poses, wall(0.0, 16.0, -1.0), wall(piece_x0, piece_x1, -0.5)))[1]
 
         fusion = WallFusion(RADAR, exact_settings())
         self.assertEqual(classes(fusion, 7.2, 8.8), [HIDDEN, LOS])  # the default: 4 m each way
@@ -483,6 +488,46 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertEqual(classes(fusion, 7.2, 8.8), [LOS, LOS])
         # the rule itself is kept: a piece as long as the gap hides what is behind its reach
         self.assertEqual(classes(fusion, 4.0, 10.0), [HIDDEN, LOS])
+
+    def test_tilted_piece_on_the_corridor_walls_line_is_not_behind_it(self):
+        """A corridor wall mapped in two pieces across a door, the far one tilted 2.3 deg
+        (a mis-fit over 3.5 m): its near end 0.11 m behind the first piece's line, its far end
+        0.03 m in front of it. Extrapolated over the 1.6 m gap, its own line passes 0.17 m
+        from the first piece's end, past line_tolerance_m (0.15 m), so the two are not one
+        line, and its echoes cross the first piece's extension: the class rule hid it (the
+        drifting office's seed 1). Both its ends lie within line_tolerance_m of the first
+        piece's line, so in the final classes it is that wall going on, line of sight
+        (CONTINUATION_ON_FRONT_LINE; not during the adjustment rounds, where a drifting
+        odometry bends the walls). A piece 0.3 m behind the line is still hidden."""
+        poses = straight_poses(0.0, 20.0)
+
+        def wall(a, b):  # south of the track, facing it, an echo every 0.2 m
+            a, b = np.array(a, float), np.array(b, float)
+            length = float(np.hypot(*(b - a)))
+            d = (b - a) / length
+            xs = np.arange(0.1, length - 0.05, 0.2)
+            points = [a + t * d for t in xs]
+            w = {"centre": 0.5 * (a + b), "direction": d, "normal": np.array([-d[1], d[0]]),
+                 "t0": -0.5 * length, "t1": 0.5 * length}
+            return w, [int(np.argmin(np.abs(poses[:, 0] - p[0]))) for p in points], points
+
+        def classes(fusion, piece_start, piece_end):
+            return fusion._classify(two_wall_state(poses, wall((0.0, -1.0), (15.0, -1.0)), wall(piece_start, piece_end)))[1]
+
+        tilted = ((16.6, -1.11), (20.1, -0.97))
+        fusion = WallFusion(RADAR, exact_settings())
+        # the two are not one line by _collinear_groups: the piece's line misses the first's end
+        front_end = np.array([15.0, -1.0])
+        a, b = np.array(tilted)
+        miss = abs(float(np.cross(b - a, front_end - a)) / np.hypot(*(b - a)))
+        self.assertGreater(miss, fusion.settings.line_tolerance_m)
+        self.assertEqual(classes(fusion, *tilted), [LOS, HIDDEN])  # during the rounds
+        fusion._rounds_done = True
+        self.assertEqual(classes(fusion, *tilted), [LOS, LOS])
+        fusion.CONTINUATION_ON_FRONT_LINE = False
+        self.assertEqual(classes(fusion, *tilted), [LOS, HIDDEN])
+        fusion.CONTINUATION_ON_FRONT_LINE = True
+        self.assertEqual(classes(fusion, (16.6, -1.3), (20.1, -1.3)), [LOS, HIDDEN])
 
     def test_doorway_edges_where_the_gain_crosses_the_ratio(self):
         """A doorway's edges lie where the line's gain ratio crosses OPENING_GAIN_RATIO (0.3),

@@ -728,6 +728,14 @@ class WallFusion:
     #: under 0.07; an open door: 0.03-0.11; docs/mapping.md)
     EXTENSION_ABSENT_RATIO = 0.15
     EXTENSION_ABSENT_POSES = 2
+    #: ...and a wall whose two ends both lie within line_tolerance_m of a line-of-sight
+    #: wall's line, parallel to it within LINE_ANGLE_DEG, is that wall going on, not a wall
+    #: behind its extension, even where the two are not one line by _collinear_groups (which
+    #: also holds the longer wall's facing end against the shorter one's line, and a short
+    #: piece tilted by 2 deg misses there: the drifting office's seed 1 had its east corridor
+    #: piece, 11 cm behind the west piece's line at its near end, classed hidden)
+    CONTINUATION_ON_FRONT_LINE = True
+    _rounds_done = False
     EXTENSION_REFERENCE_POSES = 6
     #: the adjustment's least-squares evaluations per solve, reweighting solves, and the
     #: Cauchy scale of the reweighting (normalised residuals)
@@ -2113,7 +2121,9 @@ class WallFusion:
                 members = state["walls"][k]["members"]
                 legs = self._legs_from(state["poses"], state["group"][members])
                 own_line = [i for i in range(len(los)) if line_of[i] == line_of[j]
-                            or self._same_oblique_wall(walls[j], walls[i], track)]
+                            or self._same_oblique_wall(walls[j], walls[i], track)
+                            or (self.CONTINUATION_ON_FRONT_LINE and self._rounds_done
+                                and self._on_line_of(walls[j], walls[i]))]
                 hit = self._legs_cross(*legs, state["pw"][members], a, b)
                 hit[:, own_line] = False
                 behind = np.any(hit, axis=1)
@@ -2154,6 +2164,14 @@ class WallFusion:
             return False
         ends = [behind["centre"] + t * behind["direction"] for t in (behind["t0"], behind["t1"])]
         return all(abs(float((e - front["centre"]) @ front["normal"])) <= self.SAME_WALL_M for e in ends)
+
+    def _on_line_of(self, behind, front):
+        """Whether both ends of `behind` lie within line_tolerance_m of `front`'s line and the
+        two are parallel within LINE_ANGLE_DEG (CONTINUATION_ON_FRONT_LINE)."""
+        if abs(float(behind["normal"] @ front["normal"])) < math.cos(math.radians(self.LINE_ANGLE_DEG)):
+            return False
+        ends = [behind["centre"] + t * behind["direction"] for t in (behind["t0"], behind["t1"])]
+        return all(abs(float((e - front["centre"]) @ front["normal"])) <= self.settings.line_tolerance_m for e in ends)
 
     def _extension_on_csi(self, state, k, same_line, wall_cls):
         """How far (lo, hi) line-of-sight wall k goes on past its two ends, up to LINE_GAP_M,
@@ -2823,6 +2841,7 @@ class WallFusion:
         self._line_gains = {}  # _line_gain's, by pose and line
         self._found_openings = []  # _openings, for _in_opening
         self._moved_pieces = {}  # _onto_side_lines': wall index: the wall before it moved
+        self._rounds_done = False  # CONTINUATION_ON_FRONT_LINE's stage
         s = self.settings
         odometry = np.array([g.pose for g in self.groups]).reshape(-1, 3)
         frame_indices = [g.frame_index for g in self.groups]
@@ -2914,12 +2933,14 @@ class WallFusion:
             stats["axial_ranges"] = _range_count(axial)
             stats["adjustment_rounds"] = rounds
             stats["adjustment_last_move_m"] = moved_m
+            self._rounds_done = True
             state, shifts, ghosts = refine(poses, shifts, ghosts)
             corrected = True
             if self.LOS_LEAK_AGAIN and self._fits_on_csi:
                 los_leak_db = self._timed("side walls", self._los_leak_again, state, poses)
                 if self._los_leaks is not None:
                     state, shifts, ghosts = refine(poses, shifts, ghosts)
+        self._rounds_done = True
         det_cls, wall_cls = self._classify(state)
         phase_poses = None
         self._phase_fit = None
