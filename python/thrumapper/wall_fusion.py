@@ -904,8 +904,12 @@ class WallFusion:
     #: corridor of one wall: 0.153 where no wall stands; unreported corridor walls 0.18-0.89,
     #: office_floor_drift seed 11's whole north wall 0.19; 0.2 until 2026-11-27)
     SIDE_WALL_MIN_SHARE = 0.17
-    #: a hidden wall this near a side wall's line, along it, is that wall (_absorbed_by_side_walls)
-    SIDE_WALL_ABSORB_M = 0.5
+    #: a hidden wall this near a side wall's line, along it, is that wall (_absorbed_by_side_walls):
+    #: about half a range cell (c / 2B = 1.25 m at 120 MHz), within which JADE cannot tell a
+    #: wall from the side wall's echo mixed with another (0.5 m until 2026-11-29: the drifting
+    #: office's seed 7 kept a piece 0.40-0.57 m behind its north corridor wall by a wooden
+    #: door, classed hidden, hidden 0.198 -> 0.056 m with 0.65)
+    SIDE_WALL_ABSORB_M = 0.65
     #: ...when turned from it by at most this (None: LINE_ANGLE_DEG, 6 degrees until
     #: 2026-11-28). A piece of JADE's mixture of the corridor's two echoes comes out turned as
     #: well as set back (office_floor seed 10: 1.4 m at 10 degrees, 0.02-0.27 m behind the
@@ -2618,29 +2622,29 @@ class WallFusion:
         nothing was estimated again: the leak not estimated, or a track too short for it)."""
         if not self.ESTIMATE_DIRECT_LEAK or not self._long_enough_for_leak(poses):
             return side_walls
-        first_leaks, first_db = {g: data.leak for g, data in self.refiner.poses.items()}, self._direct_leak_db
+        first_db = self._direct_leak_db
         modelled_before = self.refiner.direct_leak_modelled()
-        for _ in range(self.SIDE_WALL_LEAK_ROUNDS):
-            self._refiner_map(state, poses, wall_cls, side_walls)
-            leak_db = self._model_direct_leak(
-                poses, -math.inf if self.SIDE_WALL_LEAK_MIN_DB is None else self.SIDE_WALL_LEAK_MIN_DB)
-            if leak_db is None:
-                break
-            if not modelled_before and not self.refiner.direct_leak_modelled():
-                break  # no leak modelled before or now: the search would find the same walls
-            self._leak_estimated = True
-            self._direct_leak_db = leak_db
-            self._line_gains = {}  # the lines' gains were measured with the other estimate
-            found = self._side_walls(state, poses, wall_cls)
-            settled = len(found) == len(side_walls) and all(
-                float(np.hypot(*(a["centre"] - b["centre"]))) < self.SIDE_WALL_SETTLED_M
-                and float(a["normal"] @ b["normal"]) > math.cos(math.radians(1.0)) for a, b in zip(found, side_walls))
-            side_walls = found
-            if settled or not side_walls:
-                break
+        with contextlib.nullcontext() if self.SIDE_WALL_LEAK_KEPT else self._leaks_restored(self.refiner.poses):
+            for _ in range(self.SIDE_WALL_LEAK_ROUNDS):
+                self._refiner_map(state, poses, wall_cls, side_walls)
+                leak_db = self._model_direct_leak(
+                    poses, -math.inf if self.SIDE_WALL_LEAK_MIN_DB is None else self.SIDE_WALL_LEAK_MIN_DB)
+                if leak_db is None:
+                    break
+                if not modelled_before and not self.refiner.direct_leak_modelled():
+                    break  # no leak modelled before or now: the search would find the same walls
+                self._leak_estimated = True
+                self._direct_leak_db = leak_db
+                self._line_gains = {}  # the lines' gains were measured with the other estimate
+                found = self._side_walls(state, poses, wall_cls)
+                settled = len(found) == len(side_walls) and all(
+                    float(np.hypot(*(a["centre"] - b["centre"]))) < self.SIDE_WALL_SETTLED_M
+                    and float(a["normal"] @ b["normal"]) > math.cos(math.radians(1.0))
+                    for a, b in zip(found, side_walls))
+                side_walls = found
+                if settled or not side_walls:
+                    break
         if not self.SIDE_WALL_LEAK_KEPT:
-            for g, leak in first_leaks.items():
-                self.refiner.poses[g].leak = leak
             self._direct_leak_db = first_db
             self._line_gains = {}
         return side_walls
