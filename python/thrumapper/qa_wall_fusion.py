@@ -1162,9 +1162,11 @@ class qa_wall_fusion(gr_unittest.TestCase):
         turned 4 deg, or 1.4 m long turned 10 deg from 0.02 to 0.27 m behind it (office_floor
         seed 10's; not with the angle limited to LINE_ANGLE_DEG, SIDE_WALL_ABSORB_DEG None), or
         1.7 m long turned 5.7 deg from 0.40 to 0.57 m behind it, past a door (the drifting
-        office's seed 7's: within half a range cell, SIDE_WALL_ABSORB_M 0.65 m; not at 0.5 m);
-        it leaves a hidden wall 1.5 m behind it (a room's back wall), one along another
-        stretch, one turned 30 deg, and a line-of-sight wall."""
+        office's seed 7's: within half a range cell, SIDE_WALL_ABSORB_M 0.65 m; not at 0.5 m).
+        A line-of-sight wall 0.3 m behind it is taken too (nothing seen directly stands
+        behind a wall; not with SIDE_WALL_ABSORB_LOS_BEHIND off), one 0.3 m in front of it is
+        not (_onto_side_lines' case). It leaves a hidden wall 1.5 m behind it (a room's back
+        wall), one along another stretch, and one turned 30 deg."""
         fusion = WallFusion(RADAR, exact_settings())
 
         def line(y, x0, x1, turn_deg=0.0):
@@ -1178,23 +1180,26 @@ class qa_wall_fusion(gr_unittest.TestCase):
         side = line(1.0, 0.0, 6.0)
         walls = [line(1.3, 1.0, 5.0), line(0.7, 1.0, 5.0), line(1.3, 1.0, 5.0, 4.0), line(2.5, 0.0, 6.0),
                  line(1.3, 9.0, 12.0), line(1.3, 2.0, 4.0, 30.0), line(1.3, 1.0, 5.0),
-                 line(1.145, 2.3, 3.7, 10.0), line(1.485, 4.9, 6.6, 5.7)]
-        classes = [HIDDEN] * 6 + [LOS, HIDDEN, HIDDEN]
+                 line(1.145, 2.3, 3.7, 10.0), line(1.485, 4.9, 6.6, 5.7), line(0.7, 1.0, 5.0)]
+        classes = [HIDDEN] * 6 + [LOS, HIDDEN, HIDDEN, LOS]
         ends = [walls[7]["centre"] + t * walls[7]["direction"] for t in (walls[7]["t0"], walls[7]["t1"])]
         self.assertLess(max(abs(e[1] - 1.145) for e in ends), 0.13)  # 0.02-0.27 m behind the side wall
         far_ends = sorted(float(walls[8]["centre"][1] + t * walls[8]["direction"][1]) - 1.0
                           for t in (walls[8]["t0"], walls[8]["t1"]))
         self.assertAlmostEqual(far_ends[0], 0.40, delta=0.01)
         self.assertAlmostEqual(far_ends[1], 0.57, delta=0.01)
-        self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, [side]), {0: 0, 1: 0, 2: 0, 7: 0, 8: 0})
+        self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, [side]),
+                         {0: 0, 1: 0, 2: 0, 6: 0, 7: 0, 8: 0})
         self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, []), {})
         fusion.SIDE_WALL_ABSORB_M = 0.5
+        self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, [side]), {0: 0, 1: 0, 2: 0, 6: 0, 7: 0})
+        fusion.SIDE_WALL_ABSORB_LOS_BEHIND = False
         self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, [side]), {0: 0, 1: 0, 2: 0, 7: 0})
-        del fusion.SIDE_WALL_ABSORB_M
+        del fusion.SIDE_WALL_ABSORB_M, fusion.SIDE_WALL_ABSORB_LOS_BEHIND
         saved = WallFusion.SIDE_WALL_ABSORB_DEG
         WallFusion.SIDE_WALL_ABSORB_DEG = None
         try:
-            self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, [side]), {0: 0, 1: 0, 2: 0, 8: 0})
+            self.assertEqual(fusion._absorbed_by_side_walls(walls, classes, [side]), {0: 0, 1: 0, 2: 0, 6: 0, 8: 0})
         finally:
             WallFusion.SIDE_WALL_ABSORB_DEG = saved
 
