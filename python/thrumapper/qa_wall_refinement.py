@@ -594,21 +594,26 @@ class qa_wall_refinement(gr_unittest.TestCase):
         explains more than the piece's, and the piece is put on the line
         (WallFusion._onto_side_lines), its extent kept. The other way round (the piece on the
         face, the side line 0.3 m off) the piece stays; a piece seen from more than
-        ONTO_SIDE_MAX_POSES poses is not considered."""
+        ONTO_SIDE_MAX_POSES poses is not considered. Between two side walls, the true face's
+        0.2 m to the west and a line 0.25 m beyond the face touching it to the east, the piece
+        takes the line the CSI prefers, the face's (WallFusion.ONTO_SIDE_BEST_LINE; without
+        it the nearest, the one off the face: the drifting office's seed 4, whose open door
+        was then missed)."""
         sc, res, refiner, faces = corridor_survey(
             8.0, {"diffuse": False, "edges": False, "clutter": False},
             {"system_delay_s": 31.0e-9, "system_delay_known": True})
         module = importlib.import_module("gnuradio.thrumapper.wall_fusion")
         poses = sc.poses
 
-        def fusion_with(piece, side, poses_seen):
+        def fusion_with(piece, side, poses_seen, best_line=True):
             fusion = module.WallFusion(refiner.radar, wf_settings(correct_poses=False))
+            fusion.ONTO_SIDE_BEST_LINE = best_line
             fusion.refiner = refiner
             fusion.groups = [module._PoseGroup(pose, g) for g, pose in enumerate(poses)]
             along = np.linspace(piece["t0"], piece["t1"], len(poses_seen))
             state = {"walls": [dict(piece, members=np.arange(len(poses_seen))), dict(faces[1], members=np.zeros(0, int))],
                      "group": np.asarray(poses_seen), "pw": piece["centre"] + along[:, None] * piece["direction"]}
-            stats = fusion._onto_side_lines(state, poses, [module.LOS, module.LOS], [side])
+            stats = fusion._onto_side_lines(state, poses, [module.LOS, module.LOS], side if isinstance(side, list) else [side])
             return state["walls"][0], stats
 
         def south(offset_m, tilt_deg, t0, t1):  # a piece of the south wall's line, centre x = 4
@@ -631,6 +636,16 @@ class qa_wall_refinement(gr_unittest.TestCase):
         kept, stats = fusion_with(right, wrong_side, [2, 3, 4, 5, 6])
         self.assertEqual(stats, {})
         self.assertAlmostEqual(float(kept["centre"][1]), -1.0, delta=1e-9)
+
+        beyond = dict(faces[0], centre=np.array([6.75, -1.25]), t0=-1.25, t1=1.25)  # x = 5.5 .. 8
+        for best_line in (True, False):
+            moved, stats = fusion_with(off, [side, beyond], [2, 3, 4, 5, 6], best_line)
+            ends = [moved["centre"] + t * moved["direction"] for t in (moved["t0"], moved["t1"])]
+            if best_line:
+                self.assertEqual(list(stats), [0])
+                self.assertTrue(all(abs(float(end[1]) + 1.0) < 1e-9 for end in ends), ends)
+            else:  # the nearest line, 0.25 m beyond the face, or the piece where it was
+                self.assertTrue(all(abs(float(end[1]) + 1.0) > 0.1 for end in ends), ends)
 
         _, stats = fusion_with(off, side, [0, 1, 2, 3, 4, 5, 6, 7, 8, 2, 3])  # 9 poses: considered
         self.assertEqual(list(stats), [0])
