@@ -728,15 +728,16 @@ class WallFusion:
     #: under 0.07; an open door: 0.03-0.11; docs/mapping.md)
     EXTENSION_ABSENT_RATIO = 0.15
     EXTENSION_ABSENT_POSES = 2
+    EXTENSION_REFERENCE_POSES = 6
     #: ...and a wall whose two ends both lie within line_tolerance_m of a line-of-sight
     #: wall's line, parallel to it within LINE_ANGLE_DEG, is that wall going on, not a wall
     #: behind its extension, even where the two are not one line by _collinear_groups (which
     #: also holds the longer wall's facing end against the shorter one's line, and a short
     #: piece tilted by 2 deg misses there: the drifting office's seed 1 had its east corridor
-    #: piece, 11 cm behind the west piece's line at its near end, classed hidden)
+    #: piece, 11 cm behind the west piece's line at its near end, classed hidden); in the
+    #: classes made after the adjustment rounds only (build_map sets _rounds_done)
     CONTINUATION_ON_FRONT_LINE = True
     _rounds_done = False
-    EXTENSION_REFERENCE_POSES = 6
     #: the adjustment's least-squares evaluations per solve, reweighting solves, and the
     #: Cauchy scale of the reweighting (normalised residuals)
     ADJUSTMENT_MAX_NFEV = 200
