@@ -2149,7 +2149,8 @@ class WallFusion:
                 own_line = [i for i in range(len(los)) if line_of[i] == line_of[j]
                             or self._same_oblique_wall(walls[j], walls[i], track)
                             or (self.CONTINUATION_ON_FRONT_LINE and self._rounds_done
-                                and self._on_line_of(walls[j], walls[i]))]
+                                and self._on_line_of(walls[j], walls[i], self.LINE_ANGLE_DEG,
+                                                     self.settings.line_tolerance_m))]
                 hit = self._legs_cross(*legs, state["pw"][members], a, b)
                 hit[:, own_line] = False
                 behind = np.any(hit, axis=1)
@@ -2183,21 +2184,20 @@ class WallFusion:
         run obliquely to the track (SAME_WALL_OBLIQUE_DEG off `track`, a unit vector: the
         poses' mean heading, a straight track's direction; on a track that turns, only a
         rough one)."""
-        if abs(float(behind["normal"] @ front["normal"])) < math.cos(math.radians(self.SAME_WALL_DEG)):
-            return False
         sin_oblique = math.sin(math.radians(self.SAME_WALL_OBLIQUE_DEG))
         if min(abs(float(w["normal"] @ track)) for w in (behind, front)) < sin_oblique:
             return False
-        ends = [behind["centre"] + t * behind["direction"] for t in (behind["t0"], behind["t1"])]
-        return all(abs(float((e - front["centre"]) @ front["normal"])) <= self.SAME_WALL_M for e in ends)
+        return self._on_line_of(behind, front, self.SAME_WALL_DEG, self.SAME_WALL_M)
 
-    def _on_line_of(self, behind, front):
-        """Whether both ends of `behind` lie within line_tolerance_m of `front`'s line and the
-        two are parallel within LINE_ANGLE_DEG (CONTINUATION_ON_FRONT_LINE)."""
-        if abs(float(behind["normal"] @ front["normal"])) < math.cos(math.radians(self.LINE_ANGLE_DEG)):
+    @staticmethod
+    def _on_line_of(behind, front, angle_deg, distance_m):
+        """Whether both ends of `behind` lie within distance_m of `front`'s line and the two
+        are parallel within angle_deg (_same_oblique_wall; CONTINUATION_ON_FRONT_LINE with
+        LINE_ANGLE_DEG and line_tolerance_m)."""
+        if abs(float(behind["normal"] @ front["normal"])) < math.cos(math.radians(angle_deg)):
             return False
         ends = [behind["centre"] + t * behind["direction"] for t in (behind["t0"], behind["t1"])]
-        return all(abs(float((e - front["centre"]) @ front["normal"])) <= self.settings.line_tolerance_m for e in ends)
+        return all(abs(float((e - front["centre"]) @ front["normal"])) <= distance_m for e in ends)
 
     def _extension_on_csi(self, state, k, same_line, wall_cls):
         """How far (lo, hi) line-of-sight wall k goes on past its two ends, up to LINE_GAP_M,
@@ -2724,10 +2724,11 @@ class WallFusion:
             for n, f in enumerate(side_walls):
                 if float(w["normal"] @ f["normal"]) < cos_tol:
                     continue
-                if max(abs(float((e - f["centre"]) @ f["normal"])) for e in ends) > self.SIDE_WALL_ABSORB_M:
+                offsets = [float((e - f["centre"]) @ f["normal"]) for e in ends]
+                if max(abs(o) for o in offsets) > self.SIDE_WALL_ABSORB_M:
                     continue
                 # (a side wall's normal faces the robot: behind it is the negative side)
-                if wall_cls[k] != HIDDEN and max(float((e - f["centre"]) @ f["normal"]) for e in ends) >= 0.0:
+                if wall_cls[k] != HIDDEN and max(offsets) >= 0.0:
                     continue
                 t = sorted(float((e - f["centre"]) @ f["direction"]) for e in ends)
                 overlap = min(t[1], f["t1"]) - max(t[0], f["t0"])
