@@ -229,6 +229,22 @@ def segments_cross(p0, p1, a, b):
     return (d1 * d2 < 0) & (d3 * d4 < 0)
 
 
+def segments_distance(p0, p1, a, b):
+    """The shortest distance between segment p0→p1 and segment a→b, broadcasting over
+    leading dimensions as segments_cross: 0 where they cross, else the nearest of the four
+    ends to the other segment."""
+    p0, p1, a, b = (np.asarray(v, dtype=float) for v in (p0, p1, a, b))
+
+    def to_segment(q, u, w):
+        d = w - u
+        t = np.clip(np.sum((q - u) * d, axis=-1) / np.maximum(np.sum(d * d, axis=-1), 1e-300), 0.0, 1.0)
+        return np.hypot(*np.moveaxis(q - (u + t[..., None] * d), -1, 0))
+
+    ends = np.minimum(np.minimum(to_segment(p0, a, b), to_segment(p1, a, b)),
+                      np.minimum(to_segment(a, p0, p1), to_segment(b, p0, p1)))
+    return np.where(segments_cross(p0, p1, a, b), 0.0, ends)
+
+
 def wall_ends(walls, margin_m=0.0):
     """The end points (a (W, 2), b (W, 2)) of wall dicts (centre, direction, t0, t1), each
     extended by margin_m: one number, or one per wall."""

@@ -153,6 +153,25 @@ class qa_bistatic(gr_unittest.TestCase):
             p = np.array(args, float).reshape(4, 2)
             self.assertEqual(bool(bistatic.segments_cross(p[0], p[1], p[2], p[3])), expected, args)
 
+    def test_segment_distances(self):
+        """The gap between two segments: 0 across an X, the perpendicular from an end to the
+        other's middle, end to end when neither end faces the other; both orders the same,
+        and one row per pair when broadcast."""
+        cases = [((0, 0, 2, 2, 0, 2, 2, 0), 0.0),          # an X
+                 ((0, 0, 2, 0, 0, 1, 2, 1), 1.0),          # parallel, 1 m apart
+                 ((0, 0, 1, 0, 2, -1, 2, 1), 1.0),         # a T short of its bar by 1 m
+                 ((0, 0, 1, 0, 4, 4, 5, 4), 5.0),          # end (1, 0) to end (4, 4)
+                 ((10.04 - 0.35, 0.0, 10.04 + 0.35, 0.0, 10.31, 0.74, 10.43, 0.04), math.hypot(0.04, 0.04))]  # a wall at the RX
+        for args, expected in cases:
+            p = np.array(args, float).reshape(4, 2)
+            self.assertAlmostEqual(float(bistatic.segments_distance(p[0], p[1], p[2], p[3])), expected, places=9,
+                                   msg=str(args))
+            self.assertAlmostEqual(float(bistatic.segments_distance(p[2], p[3], p[0], p[1])), expected, places=9,
+                                   msg=str(args))
+        p = np.array([c for c, _ in cases], float).reshape(-1, 4, 2)
+        np.testing.assert_allclose(bistatic.segments_distance(p[:, 0], p[:, 1], p[:, 2], p[:, 3]),
+                                   [e for _, e in cases], atol=1e-9)
+
     def test_hidden_wall_echo_matches_the_simulator(self):
         """A plasterboard wall 2 m behind another: echo_csi of the front wall plus echo_csi of
         the back one with both of its legs through the front wall (its insertion T at each leg's

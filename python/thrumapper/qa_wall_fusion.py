@@ -158,6 +158,33 @@ class qa_wall_fusion(gr_unittest.TestCase):
         for end in (w.start_m, w.end_m):
             self.assertLess(abs((end - start) @ n), 1e-3)
 
+    def test_wall_through_the_arrays_is_no_wall(self):
+        """No wall stands where the robot went: a short wall across the track 5 cm past the RX
+        array at the last pose (its echoes from the poses before) is left out, its echoes
+        counted, with the poses corrected or not; with the rule off, or 0.45 m past the RX,
+        it is mapped."""
+        walls = [((-1.0, -1.0), (7.0, -1.0))]
+        poses = straight_poses(0.0, 6.0)
+        last_rx_x = poses[-1, 0] + RX[0]
+
+        def across(past_rx_m, correct_poses=False, **constants):
+            fusion = WallFusion(RADAR, exact_settings(correct_poses=correct_poses))
+            for name, value in constants.items():
+                setattr(fusion, name, value)
+            x = last_rx_x + past_rx_m
+            for pose in poses:
+                fusion.add(pose, wall_echoes(pose, walls + [((x, -0.3), (x, 0.4))]))
+            fused = fusion.build_map()
+            found = [w for w in fused.walls if abs(w.normal[0]) > 0.9 and abs(0.5 * (w.start_m[0] + w.end_m[0]) - x) < 0.05]
+            return len(found), fused.stats["echoes_on_the_track"]
+
+        for correct_poses in (False, True):
+            count, set_aside = across(0.05, correct_poses)
+            self.assertEqual(count, 0, correct_poses)
+            self.assertGreaterEqual(set_aside, 10, correct_poses)
+        self.assertEqual(across(0.05, TRACK_CLEARANCE_M=0.0), (1, 0))
+        self.assertEqual(across(0.45), (1, 0))
+
     def test_pose_correction_with_drifting_odometry(self):
         """20 m of corridor with odometry 1 % long and drifting 0.5° per metre: the echoes come
         from the true poses, the odometry reports drifted ones. The corridor walls, the end
