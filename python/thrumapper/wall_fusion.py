@@ -2839,12 +2839,10 @@ class WallFusion:
         if not walls or not len(poses) or self.TRACK_CLEARANCE_M <= 0:
             return out
         a, b = self._segments(walls)
-        c, s_ = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-
-        def world(v):
-            return np.column_stack((poses[:, 0] + c * v[0] - s_ * v[1], poses[:, 1] + s_ * v[0] + c * v[1]))
-
-        gap = bistatic.segments_distance(world(self.tx_c)[None], world(self.rx_c)[None], a[:, None], b[:, None])
+        count = len(poses)
+        arrays, _ = self._to_world(np.repeat([self.tx_c, self.rx_c], count, axis=0), np.zeros((2 * count, 2)), poses,
+                                   np.tile(np.arange(count), 2))
+        gap = bistatic.segments_distance(arrays[None, :count], arrays[None, count:], a[:, None], b[:, None])
         for k in np.flatnonzero(gap.min(axis=1) < self.TRACK_CLEARANCE_M):
             out[walls[k]["members"]] = True
         return out
@@ -3014,7 +3012,6 @@ class WallFusion:
                 los_leak_db = self._timed("side walls", self._los_leak_again, state, poses)
                 if self._los_leaks is not None:
                     state, shifts, ghosts = refine(poses, shifts, ghosts)
-        self._rounds_done = True
         det_cls, wall_cls = self._classify(state)
         phase_poses = None
         self._phase_fit = None
