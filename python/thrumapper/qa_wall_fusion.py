@@ -1681,6 +1681,40 @@ class qa_wall_fusion(gr_unittest.TestCase):
         lift = np.where(before[:, 0] > 5.1, 0.1, 0.0)
         np.testing.assert_allclose(points(bent), before + np.column_stack((np.zeros(len(before)), lift)), atol=1e-9)
 
+    def test_wall_drawn_where_its_poses_put_it(self):
+        """A room's back wall (y = 4.0, seen from the corridor's side, normal -y) moved 5 cm
+        back by its poses' own offsets (_apply_geometry_moves) takes along what was drawn
+        on its line: both its pieces (line of sight through a door, hidden beside it), its
+        detections, the corner on it and the end of the partition that meets it, which
+        keeps its other end; a parallel wall 1 cm off that line, the detections off it and
+        the echoes stay."""
+        from gnuradio.thrumapper.wall_fusion import FusedMap, MapCorner
+        back = np.array([0.0, -1.0])
+        walls = [MapWall(np.array([0.0, 4.0]), np.array([3.0, 4.0]), back, "hidden", 0.8, 10, 10, 0.02),
+                 MapWall(np.array([3.0, 4.0]), np.array([5.0, 4.0]), back, "line_of_sight", 0.8, 6, 6, 0.02),
+                 MapWall(np.array([5.0, 4.01]), np.array([8.0, 4.01]), back, "hidden", 0.8, 10, 10, 0.02),
+                 MapWall(np.array([3.0, 1.1]), np.array([3.0, 4.0]), np.array([1.0, 0.0]), "hidden", 0.5, 2, 0, 0.0,
+                         source="partition")]
+        detections = {"line_of_sight": np.array([[4.0, 4.0], [4.0, 1.0]]), "hidden": np.array([[1.0, 4.0], [6.0, 4.01]])}
+        echoes = {"hidden": np.array([[1.0, 3.97]])}
+        poses = straight_poses(0.0, 8.0)
+        fused = FusedMap(walls, [MapCorner(np.array([3.0, 4.0]), 0.5, "hidden", 3)], [], detections, echoes,
+                         poses, poses.copy(), list(range(len(poses))), {})
+        fusion = WallFusion(RADAR, exact_settings())
+        fusion._geometry_moves = {0: -0.05}  # along the normal (-y): 5 cm further from the robot
+        state = {"walls": [{"centre": np.array([2.0, 4.0]), "normal": back, "direction": np.array([1.0, 0.0])}]}
+        fusion._apply_geometry_moves(fused, state)
+        for w in fused.walls[:2]:
+            np.testing.assert_allclose([w.start_m[1], w.end_m[1]], [4.05, 4.05], atol=1e-12)
+        np.testing.assert_allclose([fused.walls[2].start_m[1], fused.walls[2].end_m[1]], [4.01, 4.01])
+        np.testing.assert_allclose(fused.walls[3].start_m, [3.0, 1.1])
+        np.testing.assert_allclose(fused.walls[3].end_m, [3.0, 4.05], atol=1e-12)
+        np.testing.assert_allclose(fused.corners[0].position_m, [3.0, 4.05], atol=1e-12)
+        np.testing.assert_allclose(fused.detections["line_of_sight"], [[4.0, 4.05], [4.0, 1.0]], atol=1e-12)
+        np.testing.assert_allclose(fused.detections["hidden"], [[1.0, 4.05], [6.0, 4.01]], atol=1e-12)
+        np.testing.assert_allclose(fused.echoes["hidden"], [[1.0, 3.97]])
+        self.assertEqual(fused.stats["material_geometry_moves_m"], {"0": -0.05})
+
     def test_doorway_on_a_moved_piece_kept_on_its_new_line(self):
         """WallFusion._kept_openings: a doorway the doorway test finds on the old line of a
         piece _onto_side_lines moved (tilted 7 degrees, 0.3 m in front of the side wall), and

@@ -759,9 +759,13 @@ class CsiWallRefiner:
     #: mean 0.122 -> 0.158 m); the inliers keep the medians (hidden 0.087 m) but break one
     #: map the same way (mean 0.130 m). So off (docs/mapping.md, "A wall's material offset:
     #: the sum of its poses, or their median")
+    #: the map's geometry alone, last of all, takes "inliers" (WallFusion.MATERIAL_GEOMETRY_PER_POSE)
     MATERIAL_OFFSET_PER_POSE = False
     MATERIAL_PER_POSE_MIN = 5
     MATERIAL_INLIER_M = 0.05
+    #: ...the inliers' spread, in MADs of the poses' own offsets (1 MAD tried on the office
+    #: maps' geometry: hidden median 0.089 -> 0.100 m)
+    MATERIAL_INLIER_MADS = 2.5
 
     def material_offsets(self, k, materials):
         """Where wall k lies along its normal when its echo is modelled with each of
@@ -808,7 +812,8 @@ class CsiWallRefiner:
             if self.MATERIAL_OFFSET_PER_POSE != "inliers":
                 out.append(median)
                 continue
-            spread = max(self.MATERIAL_INLIER_M, 2.5 * 1.4826 * float(np.median(np.abs(xs - median))))
+            spread = max(self.MATERIAL_INLIER_M,
+                         self.MATERIAL_INLIER_MADS * 1.4826 * float(np.median(np.abs(xs - median))))
             inliers = [g for g, x in kept if abs(x - median) <= spread]
             out.append(self._offset_search(self._objective(k, inliers, pivot, bases=bases, material=material)))
         return out
