@@ -1973,15 +1973,16 @@ class WallFusion:
             names = [name]
             if name in self.DENSE_MATERIALS and getattr(self.material, "name", None) not in self.DENSE_MATERIALS:
                 names = list(self.DENSE_MATERIALS)
-            offsets = self.refiner.material_offsets(k, [scene.MATERIAL_PRESETS[n] for n in names])
+            presets = [scene.MATERIAL_PRESETS[n] for n in names]
+            offsets = self.refiner.material_offsets(k, presets)
             if any(o is None for o in offsets):
                 continue
             offset = float(np.mean(offsets))
             w = state["walls"][k]
             if self.MATERIAL_GEOMETRY_PER_POSE and len(names) > 1:  # midway: drawn, last, by its poses
-                per_pose = self._per_pose_material_offsets(k, names)
-                if per_pose is not None:
-                    self._geometry_moves[k] = per_pose - offset
+                per_pose = self.refiner.material_offsets(k, presets, per_pose=self.MATERIAL_GEOMETRY_PER_POSE)
+                if all(o is not None for o in per_pose):
+                    self._geometry_moves[k] = float(np.mean(per_pose)) - offset
             shift = offset * w["normal"]
             state["pw"][w["members"]] += shift
             # the CSI steps after this one (open doorways, partitions, hidden walls drawn on)
@@ -1990,19 +1991,6 @@ class WallFusion:
             state["walls"][k] = dict(w, centre=w["centre"] + shift, echo_material=scene.MATERIAL_PRESETS[name])
             moved[k] = round(float(offset), 4)
         return moved
-
-    def _per_pose_material_offsets(self, k, names):
-        """Where wall k lies by its poses' own best offsets (CsiWallRefiner.material_offsets
-        with MATERIAL_OFFSET_PER_POSE set to MATERIAL_GEOMETRY_PER_POSE), averaged over the
-        materials `names` as _material_corrections averages them; None where a material
-        gives none."""
-        held = self.refiner.MATERIAL_OFFSET_PER_POSE
-        self.refiner.MATERIAL_OFFSET_PER_POSE = self.MATERIAL_GEOMETRY_PER_POSE
-        try:
-            offsets = self.refiner.material_offsets(k, [scene.MATERIAL_PRESETS[n] for n in names])
-        finally:
-            self.refiner.MATERIAL_OFFSET_PER_POSE = held
-        return None if any(o is None for o in offsets) else float(np.mean(offsets))
 
     #: a wall put midway between the dense materials' fits (_material_corrections) is drawn,
     #: last of all, where the sum of its poses' J over the poses near their own offsets'

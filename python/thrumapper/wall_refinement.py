@@ -767,7 +767,7 @@ class CsiWallRefiner:
     #: maps' geometry: hidden median 0.089 -> 0.100 m)
     MATERIAL_INLIER_MADS = 2.5
 
-    def material_offsets(self, k, materials):
+    def material_offsets(self, k, materials, per_pose=None):
         """Where wall k lies along its normal when its echo is modelled with each of
         `materials` (scene.Material) instead of the survey's: per material, the offset from
         the map's wall k that explains the most of its poses' CSI (at most
@@ -787,7 +787,10 @@ class CsiWallRefiner:
         office and skewed_walls surveys this comes 0.060 m median from the true face, the
         difference 0.067 m (RMS 0.116 against 0.165 m; docs/mapping.md, "Walls put where
         their slab's echo fits"). With MATERIAL_OFFSET_PER_POSE each pose's best offset is
-        found alone and the median taken (or the sum over the poses near it), off by default."""
+        found alone and the median taken (or the sum over the poses near it), off by default;
+        per_pose, when not None, stands for MATERIAL_OFFSET_PER_POSE in this call."""
+        if per_pose is None:
+            per_pose = self.MATERIAL_OFFSET_PER_POSE
         groups = [g for g in sorted(self.poses) if g < len(self.world_poses) and self.sees(g, k)]
         if not groups:
             return [None] * len(materials)
@@ -797,7 +800,7 @@ class CsiWallRefiner:
         wall = self.walls[k]
         pivot = np.mean([self._pivot(wall, self.world_poses[g]) for g in groups], axis=0)
         bases = {g: self._basis(g, k) for g in groups}
-        if not self.MATERIAL_OFFSET_PER_POSE or len(groups) < self.MATERIAL_PER_POSE_MIN:
+        if not per_pose or len(groups) < self.MATERIAL_PER_POSE_MIN:
             return [self._offset_search(self._objective(k, groups, pivot, bases=bases, material=material))
                     for material in materials]
         out = []
@@ -809,7 +812,7 @@ class CsiWallRefiner:
                 continue
             xs = np.array([x for _, x in kept])
             median = float(np.median(xs))
-            if self.MATERIAL_OFFSET_PER_POSE != "inliers":
+            if per_pose != "inliers":
                 out.append(median)
                 continue
             spread = max(self.MATERIAL_INLIER_M,
