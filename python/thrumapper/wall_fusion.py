@@ -1025,6 +1025,7 @@ class WallFusion:
         self._line_gains = {}  # _line_gain's, by pose and line; reset by build_map
         self._wall_material_names = {}  # wall index: material (_estimate_materials), set by build_map
         self._geometry_moves = {}  # wall index: its last move along its normal (_material_corrections)
+        self._double_moves = {}  # refiner wall index: (centre, normal, move) (_double_bounce_moves)
         self._labelled_facing = set()  # walls labelled mostly against walls facing their way (_estimate_materials)
         self._tx_gains_db = {}  # _tx_gain_db's, by direction
         self._phase_fit = None  # the carrier phase's adjustment (_phase_poses), set by build_map
@@ -2005,6 +2006,58 @@ class WallFusion:
     #: Office line of sight 0.0703 -> 0.0665 m median (0.0789 -> 0.0762 mean), hidden
     #: 0.0898 -> 0.0891 m (0.1027 -> 0.0969). False: the sum's place is kept.
     MATERIAL_GEOMETRY_PER_POSE = "inliers"
+
+    #: a line-of-sight wall facing another (within DOUBLE_BOUNCE_GEOMETRY_FACING_DEG of
+    #: parallel, a corridor's two sides) is moved, last, by what modelling the double bounces
+    #: between them changes in its place: the offset at which its poses' summed J peaks
+    #: (CsiWallRefiner.material_offsets, its direction held) with each facing pair's doubles
+    #: projected out with a free gain (CsiWallRefiner.DOUBLE_BOUNCES "free_gain"), less the
+    #: same search's offset without them. Left out of the fits, the doubles pull the
+    #: corridor's walls 3-4 cm toward the robot; in the fits they changed the map's decisions
+    #: (docs/mapping.md, "The double bounces again"), so here they move the finished map's
+    #: geometry only (_apply_geometry_moves), its decisions kept. 24 office surveys: line of
+    #: sight 0.0665 -> 0.0613 m median (0.0762 -> 0.0741 mean), the rest the same
+    #: (docs/mapping.md, "The corridor's double bounces, for the geometry alone")
+    DOUBLE_BOUNCE_GEOMETRY = True
+    #: ...where the facing wall is this near parallel: the free gain holds one pair's two
+    #: orders, of equal length between parallel walls only (skewed_walls' 10-18 deg pairs,
+    #: moved at 20 deg: seed 1's line of sight 0.071 -> 0.095 m)
+    DOUBLE_BOUNCE_GEOMETRY_FACING_DEG = 5.0
+
+    def _double_bounce_moves(self, state, wall_cls):
+        """self._double_moves filled and returned ({refiner wall index: (centre, normal,
+        metres along the normal)}), for DOUBLE_BOUNCE_GEOMETRY: the line-of-sight walls of
+        the survey's material, the side walls among them, that face another one. Needs the
+        refiner holding this map with its side walls (_estimate_materials hands it over)."""
+        ref = self.refiner
+        cos_facing = -math.cos(math.radians(self.DOUBLE_BOUNCE_GEOMETRY_FACING_DEG))
+        n_state = len(state["walls"])
+        own = getattr(self.material, "name", None)
+        saved = ref.DOUBLE_BOUNCES
+        moves = {}
+        try:
+            for k, w in enumerate(ref.walls):
+                if ref.hidden[k] or (k < n_state and (wall_cls[k] != LOS or k in self._geometry_moves)):
+                    continue
+                if self._wall_material_names.get(k, own) != own:
+                    continue  # another material's echo: its place is _material_corrections'
+                if not any(j != k and not ref.hidden[j] and float(w["normal"] @ b["normal"]) <= cos_facing
+                           for j, b in enumerate(ref.walls)):
+                    continue
+                found = []
+                for mode in (False, "free_gain"):
+                    ref.DOUBLE_BOUNCES = mode
+                    ref._double_cache = {}
+                    found.append(ref.material_offsets(k, [self.material])[0])
+                if found[0] is None or found[1] is None:
+                    continue
+                moves[k] = (np.asarray(w["centre"], float).copy(), np.asarray(w["normal"], float).copy(),
+                            float(found[1] - found[0]))
+        finally:
+            ref.DOUBLE_BOUNCES = saved
+            ref._double_cache = {}
+        self._double_moves = moves
+        return moves
 
     def _refiner_map(self, state, poses, wall_cls=None, side_walls=()):
         """Hand the CSI refiner this map: its walls, the poses, JADE's paths per group, and
@@ -3058,12 +3111,15 @@ class WallFusion:
                                                     side_walls, missing)
         self._wall_material_names = {}
         self._geometry_moves = {}
+        self._double_moves = {}
         if self._fits_on_csi and self.settings.estimate_materials and self.material is not None \
                 and not self.material.conductor:
             self._wall_material_names = self._timed("materials", self._estimate_materials, state, poses, wall_cls,
                                                     side_walls)
             if self.settings.correct_materials:
                 stats["material_corrections_m"] = self._timed("materials", self._material_corrections, state, wall_cls)
+            if self.DOUBLE_BOUNCE_GEOMETRY:
+                self._timed("double bounces", self._double_bounce_moves, state, wall_cls)
         # after the materials' corrections: a doorway found on a piece's old line is found
         # there as the map without the move would have it (_kept_openings)
         walls_before = list(state["walls"])
@@ -3076,7 +3132,7 @@ class WallFusion:
         result = self._timed("output", self._assemble, det, poses, odometry, state, det_cls, wall_cls, ghosts,
                              frame_indices, stats, end_walls, side_walls)
         result.stats["poses_corrected"] = corrected
-        if self._geometry_moves:
+        if self._geometry_moves or self._double_moves:
             self._apply_geometry_moves(result, state)
         if phase_poses is not None:
             self._warp_map(result, poses, phase_poses)
@@ -3383,9 +3439,9 @@ class WallFusion:
         partition's end on a room's back wall). The echoes stay where they were measured."""
         on_line = self.GEOMETRY_MOVE_ON_LINE_M
         parallel = math.cos(math.radians(0.5))
-        for k, delta in self._geometry_moves.items():
-            w = state["walls"][k]
-            n, c = np.asarray(w["normal"], float), np.asarray(w["centre"], float)
+        lines = [(np.asarray(state["walls"][k]["centre"], float), np.asarray(state["walls"][k]["normal"], float), d)
+                 for k, d in self._geometry_moves.items()] + list(self._double_moves.values())
+        for c, n, delta in lines:
             shift = delta * n
             for mw in result.walls:
                 off = [abs(float((p - c) @ n)) for p in (mw.start_m, mw.end_m)]
@@ -3406,6 +3462,9 @@ class WallFusion:
                     result.detections[cls] = np.where(on[:, None], points + shift, points)
         result.stats["material_geometry_moves_m"] = {str(k): round(float(v), 4)
                                                      for k, v in sorted(self._geometry_moves.items())}
+        if self._double_moves:
+            result.stats["double_bounce_moves_m"] = {str(k): round(float(v[2]), 4)
+                                                     for k, v in sorted(self._double_moves.items())}
 
     def _warp_map(self, result, old, new):
         """result (FusedMap) moved in place from poses `old` to `new` ((P, 3) each): every
