@@ -2016,7 +2016,7 @@ class WallFusion:
     #: corridor's walls 3-4 cm toward the robot; in the fits they changed the map's decisions
     #: (docs/mapping.md, "The double bounces again"), so here they move the finished map's
     #: geometry only (_apply_geometry_moves), its decisions kept. 24 office surveys: line of
-    #: sight 0.0665 -> 0.0613 m median (0.0762 -> 0.0741 mean), the rest the same
+    #: sight 0.0665 -> 0.0613 m median (0.0762 -> 0.0733 mean), the rest the same
     #: (docs/mapping.md, "The corridor's double bounces, for the geometry alone")
     DOUBLE_BOUNCE_GEOMETRY = True
     #: ...where the facing wall is this near parallel: the free gain holds one pair's two
@@ -2026,21 +2026,22 @@ class WallFusion:
 
     def _double_bounce_moves(self, state, wall_cls):
         """self._double_moves filled and returned ({refiner wall index: (centre, normal,
-        metres along the normal)}), for DOUBLE_BOUNCE_GEOMETRY: the line-of-sight walls of
-        the survey's material, the side walls among them, that face another one. Needs the
+        metres along the normal)}), for DOUBLE_BOUNCE_GEOMETRY: the line-of-sight walls, the
+        side walls among them, that face another one, but those _material_corrections moved
+        to their label's slab (a line-of-sight label alone is not sure: the office's south
+        corridor wall labelled brick on some maps). Needs the
         refiner holding this map with its side walls (_estimate_materials hands it over)."""
         ref = self.refiner
         cos_facing = -math.cos(math.radians(self.DOUBLE_BOUNCE_GEOMETRY_FACING_DEG))
         n_state = len(state["walls"])
-        own = getattr(self.material, "name", None)
         saved = ref.DOUBLE_BOUNCES
         moves = {}
         try:
             for k, w in enumerate(ref.walls):
                 if ref.hidden[k] or (k < n_state and (wall_cls[k] != LOS or k in self._geometry_moves)):
                     continue
-                if self._wall_material_names.get(k, own) != own:
-                    continue  # another material's echo: its place is _material_corrections'
+                if k < n_state and "echo_material" in state["walls"][k]:
+                    continue  # moved to its label's slab fit: its place is _material_corrections'
                 if not any(j != k and not ref.hidden[j] and float(w["normal"] @ b["normal"]) <= cos_facing
                            for j, b in enumerate(ref.walls)):
                     continue
