@@ -297,6 +297,40 @@ class qa_wall_refinement(gr_unittest.TestCase):
         refiner.set_map(mapped[:1], sc.poses, [[] for _ in sc.poses], [False])
         self.assertEqual(fusion._double_bounce_moves({"walls": mapped[:1]}, [LOS]), {})
 
+    def test_double_bounce_moves_left_where_the_doubles_are_like_the_echo(self):
+        """A corridor 2 m wide surveyed 0.7 m from its south face (1.3 m from the north one,
+        as the paper's §4.4 corridor): TX -> south -> north -> RX is 4.0 m to the north echo's
+        2.7 m, 4.7 ns after it, inside the resolution, and it leaves the TX toward the near
+        wall, so it comes in from near the far wall's own direction. The free gain would take
+        a part of the far wall's echo with it: its echo and the pair's doubles correlate over
+        0.45 (CsiWallRefiner.double_correlation; 0.61), the near wall's and those of the
+        corridor surveyed on its axis under it (0.23; 0.30 and 0.31), and
+        _double_bounce_moves leaves the far wall where it is."""
+        from gnuradio.thrumapper.wall_fusion import LOS, WallFusion
+        data = straight_survey_data([
+            {"name": "south", "segment": [[-6.0, -0.775], [8.0, -0.775]], "material": "plasterboard"},
+            {"name": "north", "segment": [[-6.0, 1.375], [8.0, 1.375]], "material": "plasterboard"}], 4.0, 1.0)
+        data["physics"] = {"diffuse": False, "edges": False, "clutter": False}
+        data["impairments"] = {"system_delay_s": 31.0e-9, "system_delay_known": True}
+        sc = scene.load_scene(data)
+        res = building_sim.simulate_survey(sc, progress=False)
+        refiner = refiner_for(res, groups=range(sc.poses.shape[0]))
+        faces = [dict(wall(-0.7), t0=-20.0, t1=20.0), dict(wall(1.3, robot_side=-1.0), t0=-20.0, t1=20.0)]
+        refiner.set_map(faces, sc.poses, [[] for _ in sc.poses], [False, False])
+        near, far = refiner.double_correlation(0), refiner.double_correlation(1)
+        self.assertGreater(far, WallFusion.DOUBLE_BOUNCE_GEOMETRY_MAX_CORRELATION, (near, far))
+        self.assertLess(near, WallFusion.DOUBLE_BOUNCE_GEOMETRY_MAX_CORRELATION, (near, far))
+        fusion = WallFusion(radar_of(res), wf_settings())
+        fusion.refiner, fusion.material = refiner, refiner.material
+        self.assertEqual(sorted(fusion._double_bounce_moves({"walls": faces}, [LOS, LOS])), [0])
+        self.assertIs(refiner.DOUBLE_BOUNCES, False)
+        sc, _, refiner, faces = corridor_survey(
+            4.0, {"diffuse": False, "edges": False, "clutter": False},
+            {"system_delay_s": 31.0e-9, "system_delay_known": True})
+        refiner.set_map(faces, sc.poses, [[] for _ in sc.poses], [False, False])
+        for k in (0, 1):  # on the axis
+            self.assertLess(refiner.double_correlation(k), WallFusion.DOUBLE_BOUNCE_GEOMETRY_MAX_CORRELATION)
+
     def test_direct_path_leak_estimated(self):
         """The TX chains' gain and phase errors (0.2 dB, 3 deg here; the survey calibrates
         only the RX side) fill the null the TX weights steer toward the RX, and cancelling the

@@ -2023,6 +2023,13 @@ class WallFusion:
     #: orders, of equal length between parallel walls only (skewed_walls' 10-18 deg pairs,
     #: moved at 20 deg: seed 1's line of sight 0.071 -> 0.095 m)
     DOUBLE_BOUNCE_GEOMETRY_FACING_DEG = 5.0
+    #: ...and where its echo and the pair's doubles are this unlike in the CSI or more
+    #: (CsiWallRefiner.double_correlation at most this): nearer alike, the free gain takes
+    #: a part of the wall's own echo with the doubles and its search walks off. On the
+    #: paper's §4.4 corridor (robot 0.7 m from one wall, 1.3 m from the other) the far wall's
+    #: is 0.59 and it was moved 9.8 cm off its face (the no-GUI flowgraph's map 0.017 ->
+    #: 0.059 m line of sight); the office corridor's walls are 0.26-0.33
+    DOUBLE_BOUNCE_GEOMETRY_MAX_CORRELATION = 0.45
 
     def _double_bounce_moves(self, state, wall_cls):
         """self._double_moves filled and returned ({refiner wall index: (centre, normal,
@@ -2044,6 +2051,9 @@ class WallFusion:
                     continue  # moved to its label's slab fit: its place is _material_corrections'
                 if not any(j != k and not ref.hidden[j] and float(w["normal"] @ b["normal"]) <= cos_facing
                            for j, b in enumerate(ref.walls)):
+                    continue
+                alike = ref.double_correlation(k)
+                if alike is None or alike > self.DOUBLE_BOUNCE_GEOMETRY_MAX_CORRELATION:
                     continue
                 found = []
                 for mode in (False, "free_gain"):
