@@ -2041,32 +2041,26 @@ class WallFusion:
         ref = self.refiner
         cos_facing = -math.cos(math.radians(self.DOUBLE_BOUNCE_GEOMETRY_FACING_DEG))
         n_state = len(state["walls"])
-        saved = ref.DOUBLE_BOUNCES
         moves = {}
-        try:
-            for k, w in enumerate(ref.walls):
-                if ref.hidden[k] or (k < n_state and (wall_cls[k] != LOS or k in self._geometry_moves)):
-                    continue
-                if k < n_state and "echo_material" in state["walls"][k]:
-                    continue  # moved to its label's slab fit: its place is _material_corrections'
-                if not any(j != k and not ref.hidden[j] and float(w["normal"] @ b["normal"]) <= cos_facing
-                           for j, b in enumerate(ref.walls)):
-                    continue
-                alike = ref.double_correlation(k)
-                if alike is None or alike > self.DOUBLE_BOUNCE_GEOMETRY_MAX_CORRELATION:
-                    continue
-                found = []
-                for mode in (False, "free_gain"):
-                    ref.DOUBLE_BOUNCES = mode
-                    ref._double_cache = {}
+        for k, w in enumerate(ref.walls):
+            if ref.hidden[k] or (k < n_state and wall_cls[k] != LOS):
+                continue
+            if k < n_state and "echo_material" in state["walls"][k]:
+                continue  # moved to its label's slab fit: its place is _material_corrections'
+            if not any(j != k and not ref.hidden[j] and float(w["normal"] @ b["normal"]) <= cos_facing
+                       for j, b in enumerate(ref.walls)):
+                continue
+            alike = ref.double_correlation(k)
+            if alike is None or alike > self.DOUBLE_BOUNCE_GEOMETRY_MAX_CORRELATION:
+                continue
+            found = []
+            for mode in (False, "free_gain"):
+                with ref.doubles_mode(mode):
                     found.append(ref.material_offsets(k, [self.material])[0])
-                if found[0] is None or found[1] is None:
-                    continue
-                moves[k] = (np.asarray(w["centre"], float).copy(), np.asarray(w["normal"], float).copy(),
-                            float(found[1] - found[0]))
-        finally:
-            ref.DOUBLE_BOUNCES = saved
-            ref._double_cache = {}
+            if found[0] is None or found[1] is None:
+                continue
+            moves[k] = (np.asarray(w["centre"], float).copy(), np.asarray(w["normal"], float).copy(),
+                        float(found[1] - found[0]))
         self._double_moves = moves
         return moves
 
@@ -3444,8 +3438,9 @@ class WallFusion:
 
     def _apply_geometry_moves(self, result, state):
         """result (FusedMap) changed in place: for each wall k of state in
-        self._geometry_moves ({k: metres along its normal}), what the map drew on its line
-        moved with it: its pieces (both classes, and the hidden walls drawn on along it), the
+        self._geometry_moves ({k: metres along its normal}) and each line in
+        self._double_moves ({refiner wall index: (centre, normal, metres)}), what the map
+        drew on its line moved with it: its pieces (both classes, and the hidden walls drawn on along it), the
         detections on it, the corners on it and the ends of walls that meet it (a
         partition's end on a room's back wall). The echoes stay where they were measured."""
         on_line = self.GEOMETRY_MOVE_ON_LINE_M
@@ -3471,8 +3466,9 @@ class WallFusion:
                 if points.size:
                     on = np.abs((points - c) @ n) <= on_line
                     result.detections[cls] = np.where(on[:, None], points + shift, points)
-        result.stats["material_geometry_moves_m"] = {str(k): round(float(v), 4)
-                                                     for k, v in sorted(self._geometry_moves.items())}
+        if self._geometry_moves:
+            result.stats["material_geometry_moves_m"] = {str(k): round(float(v), 4)
+                                                         for k, v in sorted(self._geometry_moves.items())}
         if self._double_moves:
             result.stats["double_bounce_moves_m"] = {str(k): round(float(v[2]), 4)
                                                      for k, v in sorted(self._double_moves.items())}

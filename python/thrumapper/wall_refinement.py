@@ -32,6 +32,7 @@ delay, the poses, and the CSI the estimator saw. The material is a model assumpt
 slab correction's: docs/mapping.md gives the accuracy with the right material and a wrong one.
 """
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -791,12 +792,9 @@ class CsiWallRefiner:
         per_pose, when not None, stands for MATERIAL_OFFSET_PER_POSE in this call."""
         if per_pose is None:
             per_pose = self.MATERIAL_OFFSET_PER_POSE
-        groups = [g for g in sorted(self.poses) if g < len(self.world_poses) and self.sees(g, k)]
+        groups = self._spread_groups(k)
         if not groups:
             return [None] * len(materials)
-        if len(groups) > self.MATERIAL_MAX_GROUPS:
-            pick = np.linspace(0, len(groups) - 1, self.MATERIAL_MAX_GROUPS).round().astype(int)
-            groups = [groups[i] for i in pick]
         wall = self.walls[k]
         pivot = np.mean([self._pivot(wall, self.world_poses[g]) for g in groups], axis=0)
         bases = {g: self._basis(g, k) for g in groups}
@@ -821,6 +819,25 @@ class CsiWallRefiner:
             out.append(self._offset_search(self._objective(k, inliers, pivot, bases=bases, material=material)))
         return out
 
+    def _spread_groups(self, k):
+        """The groups that see wall k, at most MATERIAL_MAX_GROUPS of them spread along it."""
+        groups = [g for g in sorted(self.poses) if g < len(self.world_poses) and self.sees(g, k)]
+        if len(groups) > self.MATERIAL_MAX_GROUPS:
+            pick = np.linspace(0, len(groups) - 1, self.MATERIAL_MAX_GROUPS).round().astype(int)
+            groups = [groups[i] for i in pick]
+        return groups
+
+    @contextlib.contextmanager
+    def doubles_mode(self, mode):
+        """DOUBLE_BOUNCES set to `mode` for the block, then restored. The doubles cached per
+        group (_doubles) do not depend on the mode, only on the map, so they stay."""
+        saved = self.DOUBLE_BOUNCES
+        self.DOUBLE_BOUNCES = mode
+        try:
+            yield
+        finally:
+            self.DOUBLE_BOUNCES = saved
+
     def double_correlation(self, k):
         """How alike wall k's echo and the double bounces of the pairs it is in are, in the
         CSI: the median over the poses that see it (at most MATERIAL_MAX_GROUPS, spread along
@@ -830,15 +847,9 @@ class CsiWallRefiner:
         doubles: on the office's corridor, the robot on its axis, 0.26-0.33; on the paper's
         §4.4 corridor, 0.7 m from one wall and 1.3 m from the other, the far wall's double
         arrives 4.7 ns after its echo from nearly its direction, 0.59."""
-        saved = self.DOUBLE_BOUNCES
-        self.DOUBLE_BOUNCES, self._double_cache = "free_gain", {}
-        try:
-            groups = [g for g in sorted(self.poses) if g < len(self.world_poses) and self.sees(g, k)]
-            if len(groups) > self.MATERIAL_MAX_GROUPS:
-                pick = np.linspace(0, len(groups) - 1, self.MATERIAL_MAX_GROUPS).round().astype(int)
-                groups = [groups[i] for i in pick]
-            values = []
-            for g in groups:
+        values = []
+        with self.doubles_mode("free_gain"):
+            for g in self._spread_groups(k):
                 echo = self._map_echo(g, k)
                 doubles = [v for v, _, _, i, j in self._doubles(g) if k in (i, j)]
                 if echo is None or not doubles:
@@ -847,8 +858,6 @@ class CsiWallRefiner:
                 scale = float(np.linalg.norm(e) * np.linalg.norm(v))
                 if scale > 0:
                     values.append(abs(complex(np.vdot(e, v))) / scale)
-        finally:
-            self.DOUBLE_BOUNCES, self._double_cache = saved, {}
         return float(np.median(values)) if values else None
 
     def pose_material_offsets(self, k, groups, material, pivot=None, bases=None):
