@@ -860,6 +860,83 @@ class CsiWallRefiner:
                     values.append(abs(complex(np.vdot(e, v))) / scale)
         return float(np.median(values)) if values else None
 
+    #: pair_offsets searches each wall this far either side of the map's...
+    PAIR_SEARCH_M = 0.3
+    #: ...on a grid of this step (a parabola through the best point's neighbours refines it)
+    PAIR_GRID_M = 0.01
+
+    def pair_offsets(self, k, j, groups=None):
+        """Walls k and j moved along their own normals together, each by its own offset,
+        to where their two echoes, modelled at once (a free gain each per frame; everything
+        else mapped projected out), explain the most of the CSI summed over the poses that
+        see both (at most MATERIAL_MAX_GROUPS of them, spread along the track, unless
+        `groups` is given): (offset_k, offset_j) metres, or None where no pose sees both or
+        the best point lies on the search's edge (PAIR_SEARCH_M).
+
+        Why two at once: a corridor's two walls, the robot near its axis, echo within one
+        delay cell, and a fit of one (material_offsets, fit_echo) projects the other out
+        where it is mapped. Mapped a few centimetres off, the projection takes the early or
+        the late part of the first wall's echo and its fit follows: from the true poses of
+        the office's bare corridor, the north wall held 5 / 13 / 25 cm beyond its face moves
+        the south wall's fit 3.5 / 10 / 12 cm toward the robot. Each wall's fit given the
+        other is then where the map already has it, both shifted one way (a ridge of the
+        pair's J along their common shift), and fits of one wall at a time walk along it
+        only slowly. The pair's J has its peak at the faces whatever the map: from any of
+        four starting maps within 5 cm of them, this search lands on the same point
+        (docs/mapping.md, "The corridor alone: its two walls' one delay")."""
+        if groups is None:
+            groups = [g for g in sorted(self.poses)
+                      if g < len(self.world_poses) and self.sees(g, k) and self.sees(g, j)]
+            if len(groups) > self.MATERIAL_MAX_GROUPS:
+                pick = np.linspace(0, len(groups) - 1, self.MATERIAL_MAX_GROUPS).round().astype(int)
+                groups = [groups[i] for i in pick]
+        n = int(round(self.PAIR_SEARCH_M / self.PAIR_GRID_M))
+        grid = self.PAIR_GRID_M * np.arange(-n, n + 1)
+        total = np.zeros((grid.size, grid.size))
+        used = 0
+        for g in groups:
+            if g not in self.poses or g >= len(self.world_poses):
+                continue
+            basis = self._basis(g, (k, j))
+            data, pose = self.poses[g], self.world_poses[g]
+            rows = self._project_out(data.rows.T, basis)  # (M*N, frames)
+            columns = []
+            for w_index in (k, j):
+                wall, crossed = self.walls[w_index], self._crossed_for(w_index)
+                echoes = []
+                for offset in grid:
+                    e = self._echo(data, dict(wall, centre=wall["centre"] + offset * wall["normal"]), pose, crossed)
+                    if e is None:
+                        break
+                    echoes.append(e[0])
+                if len(echoes) < grid.size:
+                    break
+                columns.append(self._project_out(np.array(echoes).T, basis).T)  # (offsets, M*N)
+            if len(columns) < 2:
+                continue
+            a, b = columns
+            aa, bb = np.sum(np.abs(a) ** 2, axis=1), np.sum(np.abs(b) ** 2, axis=1)
+            ab = a.conj() @ b.T  # (offset_k, offset_j)
+            ra, rb = a.conj() @ rows, b.conj() @ rows  # (offsets, frames)
+            det = aa[:, None] * bb[None, :] - np.abs(ab) ** 2
+            # each frame's energy in the span of the two echoes: r^H G^-1 r, G their Gram matrix
+            energy = (bb[None, :, None] * np.abs(ra[:, None, :]) ** 2 + aa[:, None, None] * np.abs(rb[None, :, :]) ** 2
+                      - 2.0 * np.real(np.conj(ra[:, None, :]) * ab[:, :, None] * rb[None, :, :]))
+            total += np.sum(energy, axis=2) / np.where(det > 0, det, np.inf)
+            used += 1
+        if not used:
+            return None
+        best_k, best_j = np.unravel_index(int(np.argmax(total)), total.shape)
+        if best_k in (0, grid.size - 1) or best_j in (0, grid.size - 1):
+            return None
+
+        def refined(values, i):
+            curvature = values[i - 1] - 2.0 * values[i] + values[i + 1]
+            shift = 0.5 * (values[i - 1] - values[i + 1]) / curvature if curvature < 0 else 0.0
+            return float(grid[i] + self.PAIR_GRID_M * np.clip(shift, -0.5, 0.5))
+
+        return refined(total[:, best_j], best_k), refined(total[best_k, :], best_j)
+
     def pose_material_offsets(self, k, groups, material, pivot=None, bases=None):
         """Each group's own best offset of wall k along its normal with `material`'s echo, as
         material_offsets searches it (None where the group does not see the wall or the best
