@@ -167,7 +167,7 @@ def _path_m(poses):
     return float(np.sum(np.hypot(*np.diff(np.asarray(poses)[:, :2], axis=0).T)))
 
 
-def WallFusion_default(name):
+def fusion_constant(name):
     """A WallFusion class constant's value (the package's name is the block's)."""
     return getattr(importlib.import_module("gnuradio.thrumapper.wall_fusion").WallFusion, name)
 
@@ -308,8 +308,8 @@ class qa_wall_refinement(gr_unittest.TestCase):
         fit of one wall projects the other out where it is mapped, and its search
         (material_offsets) follows the map: the south wall's answers from the two maps differ
         by 4.5 cm, the north wall's by 7.4 cm. Searched together (pair_offsets) the two walls
-        land on one place from either map and from the faces: on the faces, to 1 mm here. A pose
-        that sees only one of them, or a map whose walls lie beyond the search, gives None."""
+        land on one place from either map and from the faces: on the faces, to 1 mm here. No
+        pose to search on, or a map whose walls lie beyond the search, gives None."""
         sc, res, refiner, faces = corridor_survey(
             4.0, {"diffuse": False, "edges": False, "clutter": False, "second_order": False},
             {"system_delay_s": 31.0e-9, "system_delay_known": True})
@@ -1842,7 +1842,7 @@ class qa_wall_refinement(gr_unittest.TestCase):
         3 mm and not tighter (docs/mapping.md, "Wheels roll along the heading")."""
         sc, res = corridor_with_drifting_wheels()
         crab = {}
-        for sigma_m in (None, WallFusion_default("PHASE_POSES_SIDEWAYS_SIGMA_M"), 0.001):
+        for sigma_m in (None, fusion_constant("PHASE_POSES_SIDEWAYS_SIGMA_M"), 0.001):
             fused = mapped_with(sc, res, odometry=True, PHASE_POSES_SIDEWAYS_SIGMA_M=sigma_m)
             track = np.asarray(fused.trajectory)
             direction = np.arctan2(np.diff(track[:, 1]), np.diff(track[:, 0]))
@@ -1850,7 +1850,7 @@ class qa_wall_refinement(gr_unittest.TestCase):
             crab[sigma_m] = math.degrees(float(np.sqrt(np.mean(off ** 2))))
             across_m = 0.05 if sigma_m == 0.001 else 0.02
             self.assertLess(float(np.max(np.abs(track[:, 1] - sc.poses[:, 1]))), across_m, (sigma_m, track[:, 1]))
-        self.assertEqual(WallFusion_default("PHASE_POSES_SIDEWAYS_SIGMA_M"), 0.003)
+        self.assertEqual(fusion_constant("PHASE_POSES_SIDEWAYS_SIGMA_M"), 0.003)
         self.assertGreater(crab[None], 0.35, crab)
         self.assertLess(crab[0.003], 0.33, crab)
         self.assertLess(crab[0.001], 0.2, crab)

@@ -3213,7 +3213,7 @@ class WallFusion:
     PHASE_POSES_ORIENTATION_SIGMA_DEG = 1.0
     PHASE_POSES_ORIENTATION_BIAS = True
     #: ...and each step's sideways motion there, across the mean of its two headings, held
-    #: near nothing with this noise (None: only what the odometry's position noise allows).
+    #: near nothing with this noise (None: as the rounds, ADJUSTMENT_SIDEWAYS_SIGMA_M).
     #: Wheels roll along the heading; the odometry's reported sideways steps are its noise.
     #: Without the prior the map's track near the start ran 15-20 mrad off the exact first
     #: heading (office_floor seed 8), and the whole map turned with it. 24 office surveys:
@@ -3649,7 +3649,10 @@ class WallFusion:
         orientation_sigma_deg: the orientation noise of the echoes whose fitted normal lies
         within phase_max_tilt_deg of square to the heading (walls along the track), the
         others at csi_orientation_sigma_deg (for _phase_poses); orientation_bias: those echoes'
-        orientations less one common bias, a free unknown (PHASE_POSES_ORIENTATION_BIAS)."""
+        orientations less one common bias, a free unknown (PHASE_POSES_ORIENTATION_BIAS);
+        sideways_sigma_m: each step's sideways motion across its mean heading held near 0
+        with this noise (None: ADJUSTMENT_SIDEWAYS_SIGMA_M; PHASE_POSES_SIDEWAYS_SIGMA_M for
+        _phase_poses)."""
         from scipy.sparse import coo_matrix
 
         s = self.settings
