@@ -309,7 +309,8 @@ class qa_wall_refinement(gr_unittest.TestCase):
         (material_offsets) follows the map: the south wall's answers from the two maps differ
         by 4.5 cm, the north wall's by 7.4 cm. Searched together (pair_offsets) the two walls
         land on one place from either map and from the faces: on the faces, to 1 mm here. No
-        pose to search on, or a map whose walls lie beyond the search, gives None."""
+        pose to search on, or a map whose walls lie beyond the search, gives None; one wall
+        given twice, or an index the map does not have, a ValueError that says so."""
         sc, res, refiner, faces = corridor_survey(
             4.0, {"diffuse": False, "edges": False, "clutter": False, "second_order": False},
             {"system_delay_s": 31.0e-9, "system_delay_known": True})
@@ -329,6 +330,9 @@ class qa_wall_refinement(gr_unittest.TestCase):
             self.assertLess(abs(landed[0, k] - face_y), 0.01, landed)
             self.assertGreater(single[1, k] - single[2, k], 0.03, single)  # one wall at a time follows the map
         self.assertIsNone(refiner.pair_offsets(0, 1, groups=[]))
+        for k, j in ((0, 0), (0, 2), (-1, 1)):  # one wall twice, or a wall the map has not
+            with self.assertRaisesRegex(ValueError, "pair_offsets: walls"):
+                refiner.pair_offsets(k, j)
         refiner.set_map([dict(f, centre=f["centre"] + 0.5 * north) for f in faces], sc.poses,
                         [[] for _ in sc.poses], [False, False])
         self.assertIsNone(refiner.pair_offsets(0, 1))  # 0.5 m off: the peak is beyond the search

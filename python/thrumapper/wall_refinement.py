@@ -887,6 +887,9 @@ class CsiWallRefiner:
         only slowly. The pair's J has its peak at the faces whatever the map: from any of
         four starting maps within 5 cm of them, this search lands on the same point
         (docs/mapping.md, "The corridor alone: its two walls' one delay")."""
+        if k == j or not (0 <= k < len(self.walls) and 0 <= j < len(self.walls)):
+            raise ValueError(f"pair_offsets: walls {k} and {j}: expected two different walls of the map's "
+                             f"{len(self.walls)}")
         if groups is None:
             groups = self._spread_groups(k, j)
         n = int(round(self.PAIR_SEARCH_M / self.PAIR_GRID_M))
