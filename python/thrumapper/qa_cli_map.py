@@ -129,6 +129,21 @@ class qa_cli_map(gr_unittest.TestCase):
         self.assertNotEqual(leans[False], 0.0)
         self.assertLess(abs(leans[False]), 1.0)
 
+    def test_square_plan_flag(self):
+        """--no-square-plan leaves every wall where its own poses fitted it: the stats count no
+        wall turned and none put on a shared line, where by default they are counted (the
+        rule itself: qa_wall_fusion.test_plan_squared_and_pieces_put_on_one_line)."""
+        stats = {}
+        for flag in ([], ["--no-square-plan"]):
+            code, _, err = run([self.meta, "--geojson", self.path("square.geojson"), "--stats",
+                                self.path("square.json"), "--quiet", "--material", "metal"] + flag)
+            self.assertEqual(code, 0, err)
+            with open(self.path("square.json")) as handle:
+                stats[bool(flag)] = json.load(handle)
+        self.assertEqual((stats[True]["walls_squared"], stats[True]["walls_on_shared_lines"]), (0, 0))
+        self.assertIsInstance(stats[False]["walls_squared"], int)
+        self.assertIsInstance(stats[False]["walls_on_shared_lines"], int)
+
     def test_rx_calibration(self):
         """The reference frames give the chains' relative responses: after the correction the
         chains differ by less than 0.01 dB and 0.1 degree, and the DC offset is removed."""

@@ -1681,6 +1681,105 @@ class qa_wall_fusion(gr_unittest.TestCase):
         lift = np.where(before[:, 0] > 5.1, 0.1, 0.0)
         np.testing.assert_allclose(points(bent), before + np.column_stack((np.zeros(len(before)), lift)), atol=1e-9)
 
+    def test_plan_squared_and_pieces_put_on_one_line(self):
+        """WallFusion._regularise on a map turned 0.6 deg as a whole (the map's own turn,
+        which the rule keeps): a room's back wall fitted 2 deg off the corridor is turned
+        onto the corridor's direction about its detections' centroid; two pieces of the north
+        corridor wall 6 cm apart (20 and 10 detections) go onto one line 2 cm from the first;
+        the partition between them and the back wall keeps its place and reaches both new
+        lines, the corner on the back wall and the open doorway on the second piece move
+        with them; two partitions 10 cm apart on either side of the corridor stay apart (the
+        corridor's walls cross the gap between them); a wall skewed 12 deg is not touched;
+        the detections keep their place along their walls. With SQUARE_WITHIN_DEG = 0
+        nothing moves."""
+        from gnuradio.thrumapper.wall_fusion import FusedMap, MapCorner
+        turn = math.radians(0.6)
+        rot = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
+
+        def world(p):
+            return np.atleast_2d(np.asarray(p, float)) @ rot.T
+
+        def local(p):
+            return np.atleast_2d(np.asarray(p, float)) @ rot
+
+        tilt = math.tan(math.radians(2.0))
+        skew = math.tan(math.radians(12.0))
+        up, down, east = np.array([0.0, 1.0]), np.array([0.0, -1.0]), np.array([1.0, 0.0])
+        plan = [  # (start, end, normal in the map's frame, class, source, detections' x or y along it)
+            ((0.0, -1.0), (10.0, -1.0), up, "line_of_sight", "echoes", np.linspace(0.25, 9.75, 20)),
+            ((0.0, 1.0), (4.0, 1.0), down, "line_of_sight", "echoes", np.linspace(0.1, 3.9, 20)),
+            ((5.0, 1.06), (9.0, 1.06), down, "line_of_sight", "echoes", np.linspace(5.2, 8.8, 10)),
+            ((0.0, 4.0), (8.0, 4.0 + 8.0 * tilt), down, "hidden", "echoes", np.arange(0.5, 8.0, 1.0)),
+            ((3.0, 1.0), (3.0, 4.0 + 3.0 * tilt), east, "hidden", "partition", np.array([])),
+            ((3.0, 1.15), (3.0, 3.5), east, "hidden", "echoes", np.array([1.5, 2.0, 2.5, 3.0])),
+            ((3.1, -1.15), (3.1, -4.0), east, "hidden", "echoes", np.array([-1.5, -2.0, -2.5, -3.0])),
+            ((12.0, -1.0), (15.0, -1.0 - 3.0 * skew), up, "line_of_sight", "echoes", np.array([12.5, 13.0, 13.5, 14.0, 14.5])),
+        ]
+
+        def on(k, s):  # the point of wall k at x = s (or y = s on the walls across the corridor)
+            (x0, y0), (x1, y1) = plan[k][0], plan[k][1]
+            if abs(x1 - x0) > abs(y1 - y0):
+                return np.array([s, y0 + (y1 - y0) * (s - x0) / (x1 - x0)])
+            return np.array([x0 + (x1 - x0) * (s - y0) / (y1 - y0), s])
+
+        def a_map():
+            walls = [MapWall(world(a)[0], world(b)[0], rot @ n, cls, 0.8, 10, max(1, len(d)), 0.02, source=src)
+                     for a, b, n, cls, src, d in plan]
+            points = {"line_of_sight": [], "hidden": []}
+            for k, (_, _, _, cls, _, along) in enumerate(plan):
+                points[cls] += [on(k, s) for s in along]
+            detections = {c: world(np.array(p)) for c, p in points.items()}
+            corner = MapCorner(world(on(3, 3.0))[0], 0.6, "hidden", 3)
+            opening = MapOpening(world((6.0, 1.06))[0], world((6.8, 1.06))[0], rot @ down, 0.5, 3, 0.05)
+            track = np.column_stack((world(np.column_stack((np.arange(0.0, 10.01, 0.2), np.zeros(51)))), np.full(51, turn)))
+            return FusedMap(walls, [corner], [], detections, {"hidden": world([[1.0, 3.9]])}, track, track.copy(),
+                            list(range(51)), {}, [opening])
+
+        fusion = WallFusion(RADAR, exact_settings())
+        m = a_map()
+        turned, merged = fusion._regularise(m)
+        self.assertEqual(turned, 1)  # the back wall
+        ends = [local(np.vstack((w.start_m, w.end_m))) for w in m.walls]
+        # the back wall: level, through its detections' centroid (x = 4: 4 + 4 tan 2 deg)
+        np.testing.assert_allclose(ends[3][:, 1], 4.0 + 4.0 * tilt, atol=1e-9)
+        np.testing.assert_allclose(local(m.walls[3].normal)[0], down, atol=1e-9)
+        # the north corridor wall's pieces on one line, where 20 and 10 detections put it
+        for k in (1, 2):
+            np.testing.assert_allclose(ends[k][:, 1], (20 * 1.0 + 10 * 1.06) / 30, atol=1e-9)
+            np.testing.assert_allclose(ends[k][:, 0], [plan[k][0][0], plan[k][1][0]], atol=1e-9)
+        self.assertGreaterEqual(merged, 2)
+        # the partition: still at x = 3, from the merged corridor line to the back wall's
+        np.testing.assert_allclose(ends[4], [[3.0, 1.02], [3.0, 4.0 + 4.0 * tilt]], atol=1e-9)
+        # the partitions on either side of the corridor, 10 cm apart, stay where they were
+        np.testing.assert_allclose(ends[5][:, 0], 3.0, atol=1e-9)
+        np.testing.assert_allclose(ends[6][:, 0], 3.1, atol=1e-9)
+        # the south corridor wall and the skewed wall are not touched
+        for k in (0, 7):
+            np.testing.assert_allclose(ends[k], [plan[k][0], plan[k][1]], atol=1e-9)
+        np.testing.assert_allclose(local(m.corners[0].position_m)[0], [3.0, 4.0 + 4.0 * tilt], atol=1e-9)
+        np.testing.assert_allclose(local(np.vstack((m.openings[0].start_m, m.openings[0].end_m))),
+                                   [[6.0, 1.02], [6.8, 1.02]], atol=1e-9)
+        # the detections: on their walls' new lines, at the same place along them
+        los, hidden = local(m.detections["line_of_sight"]), local(m.detections["hidden"])
+        np.testing.assert_allclose(los[:20], [on(0, s) for s in plan[0][5]], atol=1e-9)
+        np.testing.assert_allclose(los[20:50, 1], 1.02, atol=1e-9)
+        np.testing.assert_allclose(los[20:50, 0], np.concatenate((plan[1][5], plan[2][5])), atol=1e-9)
+        np.testing.assert_allclose(los[50:], [on(7, s) for s in plan[7][5]], atol=1e-9)
+        np.testing.assert_allclose(hidden[:8, 1], 4.0 + 4.0 * tilt, atol=1e-9)
+        # along the turned wall, each detection keeps its distance from the centroid
+        np.testing.assert_allclose(hidden[:8, 0] - 4.0, (plan[3][5] - 4.0) / math.cos(math.radians(2.0)), atol=1e-9)
+        np.testing.assert_allclose(local(m.echoes["hidden"]), [[1.0, 3.9]], atol=1e-12)  # measured: they stay
+        # the rule off (FusionSettings.square_plan, thrumapper-map --no-square-plan): nothing moves
+        for off in (WallFusion(RADAR, exact_settings(square_plan=False)), fusion):
+            off.SQUARE_WITHIN_DEG = 0.0 if off is fusion else off.SQUARE_WITHIN_DEG
+            untouched, before = a_map(), a_map()
+            self.assertEqual(off._regularise(untouched), (0, 0))
+            for w, v in zip(untouched.walls, before.walls):
+                np.testing.assert_array_equal(np.vstack((w.start_m, w.end_m)), np.vstack((v.start_m, v.end_m)))
+            np.testing.assert_array_equal(untouched.detections["hidden"], before.detections["hidden"])
+        with self.assertRaisesRegex(Exception, "square_plan: expected True or False"):
+            exact_settings(square_plan="no").check()
+
     def test_wall_drawn_where_its_poses_put_it(self):
         """A room's back wall (y = 4.0, seen from the corridor's side, normal -y) moved 5 cm
         back by its poses' own offsets (_apply_geometry_moves) takes along what was drawn

@@ -132,6 +132,11 @@ class FusionSettings:
     #: image on the two sides of the track (the corridor's double bounces), rather than take
     #: it for heading (WallFusion.ORIENTATION_LEAN_SIGMA_DEG; docs/mapping.md, "The echoes' lean")
     orientation_lean: bool = True
+    #: square the finished plan: walls within WallFusion.SQUARE_WITHIN_DEG of the map's main
+    #: direction or of square to it turned onto it, and the pieces of one wall put on one line
+    #: (WallFusion._regularise; docs/mapping.md, "The plan squared"). Off for a building whose
+    #: walls meet at other angles than 90 degrees by a few degrees
+    square_plan: bool = True
     #: odometry error model for the pose correction (1-sigma per step)
     odometry_scale_sigma: float = 0.01
     odometry_heading_sigma_deg_per_m: float = 0.5
@@ -169,7 +174,7 @@ class FusionSettings:
         if not math.isfinite(self.min_relative_power_db):
             raise FusionError(f"min_relative_power_db: expected a number, got {self.min_relative_power_db!r}")
         for name in ("estimate_materials", "correct_materials", "correct_poses", "side_walls", "partitions",
-                     "continue_hidden_walls", "orientation_lean"):
+                     "continue_hidden_walls", "orientation_lean", "square_plan"):
             value = getattr(self, name)
             if not isinstance(value, (bool, np.bool_)):  # ("no" would be taken for yes)
                 raise FusionError(f"{name}: expected True or False, got {value!r}")
@@ -3145,6 +3150,10 @@ class WallFusion:
             self._apply_geometry_moves(result, state)
         if phase_poses is not None:
             self._warp_map(result, poses, phase_poses)
+        # last: the plan squared on the finished walls, wherever the moves above put them
+        turned, merged = self._timed("output", self._regularise, result)
+        result.stats["walls_squared"] = turned
+        result.stats["walls_on_shared_lines"] = merged
         result.stats["unconfirmed_echoes"] = int(np.count_nonzero(self._unconfirmed))
         result.stats["echoes_on_the_track"] = int(np.count_nonzero(self._on_the_track))
         if self._odometry_fit:
@@ -3491,6 +3500,264 @@ class WallFusion:
         if self._double_moves:
             result.stats["double_bounce_moves_m"] = {str(k): round(float(v[2]), 4)
                                                      for k, v in sorted(self._double_moves.items())}
+
+    # -- the floor plan's lines --------------------------------------------------------------
+    #: a wall within this of the map's main direction, or square to it, is turned onto it about
+    #: its detections' centroid (_regularise; 0: no wall is turned nor merged). The main
+    #: direction is the line-of-sight walls' own, which carries the map's turn: the rule
+    #: squares the plan, it does not turn it. Walls further off (skewed_walls' 12-18 deg) keep
+    #: their fitted direction
+    SQUARE_WITHIN_DEG = 5.0
+    #: ...and pieces turned onto one direction whose lines lie within this of each other
+    #: along their normal (with no wall across the gap between them) are one wall seen in
+    #: pieces: they are put on one line, where their detections put it on average (a room's
+    #: back wall, fitted piece by piece between its partitions and through an open door, was
+    #: 0.1-0.3 m apart from piece to piece; 0: no merge)
+    MERGE_LINES_WITHIN_M = 0.3
+    #: what lies within this of a wall's line (its detections, a corner, an opening's ends,
+    #: another wall's end) moves with it
+    REGULARISE_ON_LINE_M = 0.05
+    #: ...and a wall's end on another wall's line goes to where their new lines meet when
+    #: that is within this of it (further: the lines meet at a shallow angle, the end stays)
+    REGULARISE_END_MOVE_M = 1.0
+    #: a line-of-sight wall with at least this many detections gives the main direction by
+    #: theirs (the warp onto the carrier-phase poses bends a long wall's detections a few
+    #: centimetres off its chord and swings ends drawn past the track)
+    REGULARISE_MIN_DETECTIONS = 5
+
+    def _regularise(self, result):
+        """result (FusedMap) squared in place (SQUARE_WITHIN_DEG, MERGE_LINES_WITHIN_M): the
+        indoor floor plan's rule that walls run along the corridor or across it. Each wall
+        within SQUARE_WITHIN_DEG of the main direction (the direction, modulo 90 degrees, that
+        the most line-of-sight wall length lies within SQUARE_WITHIN_DEG of, its length-squared
+        weighted mean) or square to it is turned onto it about the centroid of its detections
+        (the least-squares line of that direction through them), or about its middle when it
+        has none. Then the turned walls of one direction whose lines lie within
+        MERGE_LINES_WITHIN_M of their neighbours' are put on one line, at the mean of their
+        offsets weighted by their detections (pieces with none follow it), unless a wall of
+        another direction crosses the gap between two of them (the partitions on the two
+        sides of a corridor stay apart). Detections move with their wall (their residual from
+        its line kept), and so do the openings and corners on it; a wall's end that lay on
+        another wall's line is put where the two new lines meet. The echoes stay where they
+        were measured. Returns (walls turned, walls moved onto a shared line)."""
+        if not self.settings.square_plan or not self.SQUARE_WITHIN_DEG or not result.walls:
+            return 0, 0
+        near = self.REGULARISE_ON_LINE_M
+        within = math.radians(self.SQUARE_WITHIN_DEG)
+        walls = result.walls
+        a0 = np.array([w.start_m for w in walls], float)
+        b0 = np.array([w.end_m for w in walls], float)
+        lengths = np.hypot(*(b0 - a0).T)
+        angles = np.arctan2(b0[:, 1] - a0[:, 1], b0[:, 0] - a0[:, 0])
+
+        def quarter(x):  # an angle modulo 90 degrees, in [-45, 45)
+            return (np.asarray(x) + math.pi / 4) % (math.pi / 2) - math.pi / 4
+
+        # each detection's wall: the nearest line within `near` whose stretch holds it
+        units = (b0 - a0) / np.maximum(lengths, 1e-12)[:, None]
+        normals = np.column_stack((-units[:, 1], units[:, 0]))
+        owners = {}
+        for cls, points in result.detections.items():
+            points = np.asarray(points, float).reshape(-1, 2)
+            owner = np.full(points.shape[0], -1)
+            best = np.full(points.shape[0], near)
+            for k in range(len(walls)):
+                if lengths[k] <= 0:
+                    continue
+                along = (points - a0[k]) @ units[k]
+                dist = np.abs((points - a0[k]) @ normals[k])
+                inside = (along >= -near) & (along <= lengths[k] + near) & (dist <= best)
+                owner[inside], best[inside] = k, dist[inside]
+            owners[cls] = owner
+        counts = np.zeros(len(walls), int)
+        centroids = np.zeros((len(walls), 2))
+        for cls, owner in owners.items():
+            points = np.asarray(result.detections[cls], float).reshape(-1, 2)
+            for k in np.unique(owner[owner >= 0]):
+                counts[k] += int(np.count_nonzero(owner == k))
+                centroids[k] += points[owner == k].sum(axis=0)
+
+        # the main direction: that of the line-of-sight walls' detections (a least-squares
+        # line through them; the wall's own ends where it has few), the longest weighing most
+        los = [k for k, w in enumerate(walls) if w.cls == CLASSES[LOS] and lengths[k] > 0]
+        if not los:
+            return 0, 0
+        directions, spans = angles.copy(), lengths.copy()
+        for k in los:
+            if counts[k] >= self.REGULARISE_MIN_DETECTIONS:
+                points = np.vstack([np.asarray(result.detections[cls], float).reshape(-1, 2)[owner == k]
+                                    for cls, owner in owners.items()])
+                _, sv, vt = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
+                directions[k] = math.atan2(vt[0][1], vt[0][0])
+                spans[k] = math.sqrt(12.0 / points.shape[0]) * sv[0]  # the stretch they cover
+        support = [sum(spans[j] for j in los if abs(quarter(directions[j] - directions[k])) <= within) for k in los]
+        k0 = los[int(np.argmax(support))]
+        close = [j for j in los if abs(quarter(directions[j] - directions[k0])) <= within]
+        main = float(directions[k0] + np.angle(np.sum(spans[close] ** 2 * np.exp(4j * quarter(directions[close] - directions[k0])))) / 4)
+
+        # turned onto the main direction or square to it
+        a1, b1 = a0.copy(), b0.copy()
+        family = {}
+        for k in range(len(walls)):
+            off = float(quarter(angles[k] - main))
+            if lengths[k] <= 0 or abs(off) > within:
+                continue
+            family[k] = int(round((angles[k] - main - off) / (math.pi / 2))) % 2
+            pivot = centroids[k] / counts[k] if counts[k] else 0.5 * (a0[k] + b0[k])
+            c, s = math.cos(-off), math.sin(-off)
+            rot = np.array([[c, -s], [s, c]])
+            a1[k], b1[k] = rot @ (a0[k] - pivot) + pivot, rot @ (b0[k] - pivot) + pivot
+        turned = sum(1 for k in family if abs(float(quarter(angles[k] - main))) > 1e-9)
+
+        # pieces of one line put on one line
+        merged = 0
+        # pieces labelled plasterboard and dense (brick or concrete, which the echoes do not
+        # tell apart) are two walls, each put where its own slab's model fits it
+        kind = [None if w.material is None else ("dense" if w.material in self.DENSE_MATERIALS else w.material)
+                for w in walls]
+        if self.MERGE_LINES_WITHIN_M:
+            for q in (0, 1):
+                along_dir = np.array([math.cos(main + q * math.pi / 2), math.sin(main + q * math.pi / 2)])
+                across = np.array([-along_dir[1], along_dir[0]])
+                members = sorted((float((0.5 * (a1[k] + b1[k])) @ across), k) for k, f in family.items() if f == q)
+                others = [j for j in range(len(walls))
+                          if lengths[j] > 0 and family.get(j) != q and walls[j].cls == CLASSES[LOS]]
+
+                def line_of(group):  # where its pieces' detections put the line, on average
+                    return float(sum(o * counts[i] for o, i in group) / max(1, sum(counts[i] for _, i in group)))
+
+                def joins(group, offset, k):
+                    return abs(offset - line_of(group)) <= self.MERGE_LINES_WITHIN_M and \
+                        len(({kind[i] for _, i in group} | {kind[k]}) - {None}) <= 1 and \
+                        not any(self._gap_crossed(a1, b1, i, k, along_dir, others, self.MERGE_LINES_WITHIN_M)
+                                for _, i in group)
+
+                # the pieces with detections make the lines, those without (drawn on past
+                # echoes, bridging gaps, partitions from dips) follow the nearest they join
+                groups = []
+                for offset, k in members:
+                    if not counts[k]:
+                        continue
+                    if groups and joins(groups[-1], offset, k):
+                        groups[-1].append((offset, k))
+                    else:
+                        groups.append([(offset, k)])
+                targets = [line_of(g) for g in groups]
+                for offset, k in members:
+                    if counts[k]:
+                        continue
+                    near_groups = [(abs(t - offset), n) for n, (g, t) in enumerate(zip(groups, targets))
+                                   if abs(t - offset) <= self.MERGE_LINES_WITHIN_M and joins(g, t, k)]
+                    if near_groups:
+                        groups[min(near_groups)[1]].append((offset, k))
+                for group, target in zip(groups, targets):
+                    if len(group) < 2:
+                        continue
+                    for offset, k in group:
+                        a1[k] = a1[k] + (target - offset) * across
+                        b1[k] = b1[k] + (target - offset) * across
+                        merged += 1
+
+        moved = [k for k in range(len(walls)) if np.any(a1[k] != a0[k]) or np.any(b1[k] != b0[k])]
+        if not moved:
+            return turned, merged
+
+        def carried(points, k):
+            """points on wall k's old line to the same place along and across its new one."""
+            u1 = (b1[k] - a1[k]) / lengths[k]
+            n1 = np.array([-u1[1], u1[0]])
+            rel = np.asarray(points, float) - a0[k]
+            return a1[k] + np.outer(rel @ units[k], u1) + np.outer(rel @ normals[k], n1)
+
+        def on_line(point, exclude=()):
+            """The walls whose old line passes within `near` of point, within their stretch."""
+            rel = point - a0
+            along = np.einsum("ij,ij->i", rel, units)
+            dist = np.abs(np.einsum("ij,ij->i", rel, normals))
+            return [k for k in np.flatnonzero((dist <= near) & (along >= -near) & (along <= lengths + near) & (lengths > 0))
+                    if k not in exclude]
+
+        def meeting(k, j):
+            """Where wall k's new line meets wall j's, or None when they are near parallel."""
+            u, v = b1[k] - a1[k], b1[j] - a1[j]
+            det = u[0] * v[1] - u[1] * v[0]
+            if abs(det) < math.sin(math.radians(20.0)) * np.hypot(*u) * np.hypot(*v):
+                return None
+            t = ((a1[j][0] - a1[k][0]) * v[1] - (a1[j][1] - a1[k][1]) * v[0]) / det
+            return a1[k] + t * u
+
+        moved_set = set(moved)
+        new_a, new_b = a1.copy(), b1.copy()
+        for k in range(len(walls)):
+            for end, new in ((a0[k], new_a), (b0[k], new_b)):
+                touching = [j for j in on_line(end, exclude=(k,)) if j in moved_set or k in moved_set]
+                for j in touching:
+                    point = meeting(k, j)
+                    if point is not None and np.hypot(*(point - end)) <= self.REGULARISE_END_MOVE_M:
+                        new[k] = point
+                        break
+        for cls, owner in owners.items():
+            points = np.asarray(result.detections[cls], float).reshape(-1, 2).copy()
+            for k in np.unique(owner[owner >= 0]):
+                if k in moved_set:
+                    points[owner == k] = carried(points[owner == k], k)
+            result.detections[cls] = points
+        for corner in result.corners:
+            lines = on_line(corner.position_m)
+            if not moved_set.intersection(lines):
+                continue
+            crossing = next((meeting(k, j) for i, k in enumerate(lines) for j in lines[i + 1:]
+                             if meeting(k, j) is not None), None)
+            if crossing is not None and np.hypot(*(crossing - corner.position_m)) <= self.REGULARISE_END_MOVE_M:
+                corner.position_m = crossing
+            else:
+                k = next(k for k in lines if k in moved_set)
+                corner.position_m = carried(corner.position_m[None, :], k)[0]
+        for opening in result.openings:
+            lines = [k for k in on_line(0.5 * (opening.start_m + opening.end_m)) if k in moved_set]
+            if lines:
+                k = lines[0]
+                opening.start_m, opening.end_m = carried(np.vstack((opening.start_m, opening.end_m)), k)
+                u1 = (b1[k] - a1[k]) / lengths[k]
+                n1 = np.array([-u1[1], u1[0]])
+                opening.normal = n1 if float(n1 @ opening.normal) >= 0 else -n1
+        for k in moved:
+            w = walls[k]
+            u1 = (b1[k] - a1[k]) / lengths[k]
+            n1 = np.array([-u1[1], u1[0]])
+            w.normal = n1 if float(n1 @ w.normal) >= 0 else -n1
+        for k, w in enumerate(walls):
+            w.start_m, w.end_m = new_a[k], new_b[k]
+        return turned, merged
+
+    @staticmethod
+    def _gap_crossed(a, b, i, k, along_dir, others, junction_m):
+        """Whether a wall of `others` runs through the gap along their line between walls i
+        and k (ends a, b: (W, 2)): it crosses the segment between their facing ends with both
+        its own ends further than junction_m from that segment's line. A partition that ends
+        on a room's back wall meets it, and the back wall's pieces on either side are one
+        wall; a corridor's wall passing between two partitions parts them. False when the two
+        overlap along their line."""
+        ends_i = sorted((a[i], b[i]), key=lambda e: float(e @ along_dir))
+        ends_k = sorted((a[k], b[k]), key=lambda e: float(e @ along_dir))
+        if float(ends_i[1] @ along_dir) < float(ends_k[0] @ along_dir):
+            p, q = ends_i[1], ends_k[0]
+        elif float(ends_k[1] @ along_dir) < float(ends_i[0] @ along_dir):
+            p, q = ends_k[1], ends_i[0]
+        else:
+            return False
+
+        def side(o, d, x):  # |d| times the signed distance of x from the line o + t d
+            return float(d[0] * (x[1] - o[1]) - d[1] * (x[0] - o[0]))
+
+        gap = q - p
+        length = float(np.hypot(*gap))
+        for j in others:
+            d1, d2 = side(p, gap, a[j]), side(p, gap, b[j])
+            d3, d4 = side(a[j], b[j] - a[j], p), side(a[j], b[j] - a[j], q)
+            if d1 * d2 < 0 and d3 * d4 < 0 and min(abs(d1), abs(d2)) > junction_m * length:
+                return True
+        return False
 
     def _warp_map(self, result, old, new):
         """result (FusedMap) moved in place from poses `old` to `new` ((P, 3) each): every
