@@ -1780,6 +1780,38 @@ class qa_wall_fusion(gr_unittest.TestCase):
         with self.assertRaisesRegex(Exception, "square_plan: expected True or False"):
             exact_settings(square_plan="no").check()
 
+    def test_back_wall_pieces_joined_past_a_partition(self):
+        """A room's back wall fitted in two pieces 10 cm apart (y = -4.0 and -4.1, 10
+        detections each) on either side of a line-of-sight partition that ends on it,
+        overshooting its line by 15 cm: the partition meets the wall, it does not part it, so
+        _regularise puts both pieces and their detections on y = -4.05. A wall that runs on
+        through the gap, 1 m past the back wall's line, keeps them apart."""
+        from gnuradio.thrumapper.wall_fusion import FusedMap
+        up, east = np.array([0.0, 1.0]), np.array([1.0, 0.0])
+
+        def a_map(partition_end_y):
+            walls = [MapWall(np.array([0.0, -1.0]), np.array([10.0, -1.0]), up, "line_of_sight", 0.9, 20, 20, 0.01),
+                     MapWall(np.array([0.0, -4.0]), np.array([4.9, -4.0]), up, "hidden", 0.8, 10, 10, 0.02),
+                     MapWall(np.array([5.1, -4.1]), np.array([10.0, -4.1]), up, "hidden", 0.8, 10, 10, 0.02),
+                     MapWall(np.array([5.0, -1.0]), np.array([5.0, partition_end_y]), east, "line_of_sight",
+                             0.6, 5, 5, 0.02)]
+            detections = {"line_of_sight": np.array([[x, -1.0] for x in np.linspace(0.25, 9.75, 20)]
+                                                    + [[5.0, y] for y in (-1.5, -2.0, -2.5, -3.0, -3.5)]),
+                          "hidden": np.array([[x, -4.0] for x in np.linspace(0.2, 4.7, 10)]
+                                             + [[x, -4.1] for x in np.linspace(5.3, 9.8, 10)])}
+            track = np.column_stack((np.arange(0.0, 10.01, 0.5), np.zeros(21), np.zeros(21)))
+            return FusedMap(walls, [], [], detections, {}, track, track.copy(), list(range(21)), {})
+
+        fusion = WallFusion(RADAR, exact_settings())
+        joined = a_map(-4.2)
+        fusion._regularise(joined)
+        for w in joined.walls[1:3]:
+            np.testing.assert_allclose([w.start_m[1], w.end_m[1]], -4.05, atol=1e-9)
+        np.testing.assert_allclose(joined.detections["hidden"][:, 1], -4.05, atol=1e-9)
+        apart = a_map(-5.1)
+        fusion._regularise(apart)
+        np.testing.assert_allclose([apart.walls[1].start_m[1], apart.walls[2].start_m[1]], [-4.0, -4.1], atol=1e-9)
+
     def test_wall_drawn_where_its_poses_put_it(self):
         """A room's back wall (y = 4.0, seen from the corridor's side, normal -y) moved 5 cm
         back by its poses' own offsets (_apply_geometry_moves) takes along what was drawn

@@ -3508,11 +3508,11 @@ class WallFusion:
     #: squares the plan, it does not turn it. Walls further off (skewed_walls' 12-18 deg) keep
     #: their fitted direction
     SQUARE_WITHIN_DEG = 5.0
-    #: ...and pieces turned onto one direction whose lines lie within this of each other
-    #: along their normal (with no wall across the gap between them) are one wall seen in
-    #: pieces: they are put on one line, where their detections put it on average (a room's
-    #: back wall, fitted piece by piece between its partitions and through an open door, was
-    #: 0.1-0.3 m apart from piece to piece; 0: no merge)
+    #: ...and pieces turned onto one direction whose lines lie within this of the line their
+    #: detections put together (with no line-of-sight wall running through the gap between
+    #: them, and not plasterboard with brick or concrete) are one wall seen in pieces: they
+    #: are put on that line (a room's back wall, fitted piece by piece between its partitions
+    #: and through an open door, was 0.1-0.3 m apart from piece to piece; 0: no merge)
     MERGE_LINES_WITHIN_M = 0.3
     #: what lies within this of a wall's line (its detections, a corner, an opening's ends,
     #: another wall's end) moves with it
@@ -3526,20 +3526,28 @@ class WallFusion:
     REGULARISE_MIN_DETECTIONS = 5
 
     def _regularise(self, result):
-        """result (FusedMap) squared in place (SQUARE_WITHIN_DEG, MERGE_LINES_WITHIN_M): the
-        indoor floor plan's rule that walls run along the corridor or across it. Each wall
-        within SQUARE_WITHIN_DEG of the main direction (the direction, modulo 90 degrees, that
-        the most line-of-sight wall length lies within SQUARE_WITHIN_DEG of, its length-squared
-        weighted mean) or square to it is turned onto it about the centroid of its detections
-        (the least-squares line of that direction through them), or about its middle when it
-        has none. Then the turned walls of one direction whose lines lie within
-        MERGE_LINES_WITHIN_M of their neighbours' are put on one line, at the mean of their
-        offsets weighted by their detections (pieces with none follow it), unless a wall of
-        another direction crosses the gap between two of them (the partitions on the two
-        sides of a corridor stay apart). Detections move with their wall (their residual from
+        """result (FusedMap) squared in place (FusionSettings.square_plan, SQUARE_WITHIN_DEG,
+        MERGE_LINES_WITHIN_M): the indoor floor plan's rule that walls run along the corridor
+        or across it (docs/mapping.md, "The plan squared").
+
+        The main direction is the direction, modulo 90 degrees, that the most line-of-sight
+        wall length lies within SQUARE_WITHIN_DEG of: each wall's direction that of its
+        detections' least-squares line (its ends' with fewer than REGULARISE_MIN_DETECTIONS),
+        weighted by the square of the stretch they cover. Each wall within SQUARE_WITHIN_DEG
+        of it or of square to it is turned onto it about the centroid of its detections (the
+        least-squares line of that direction through them), or about its middle when it has
+        none. Then, per direction, the turned walls with detections whose lines lie within
+        MERGE_LINES_WITHIN_M of the line their group's detections put are one wall, put on
+        that line (the mean of their offsets weighted by their detections), unless a
+        line-of-sight wall of another direction runs through the gap between two of them with
+        both its ends further than MERGE_LINES_WITHIN_M from their line (a corridor between
+        two partitions; a partition ending on a back wall is a junction), or one is labelled
+        plasterboard and another brick or concrete; the walls without detections follow the
+        nearest such line they join. Detections move with their wall (their residual from
         its line kept), and so do the openings and corners on it; a wall's end that lay on
-        another wall's line is put where the two new lines meet. The echoes stay where they
-        were measured. Returns (walls turned, walls moved onto a shared line)."""
+        another wall's line is put where the two new lines meet (within
+        REGULARISE_END_MOVE_M). The echoes stay where they were measured. Returns (walls
+        turned, walls moved onto a shared line)."""
         if not self.settings.square_plan or not self.SQUARE_WITHIN_DEG or not result.walls:
             return 0, 0
         near = self.REGULARISE_ON_LINE_M
