@@ -3561,29 +3561,31 @@ class WallFusion:
         def quarter(x):  # an angle modulo 90 degrees, in [-45, 45)
             return (np.asarray(x) + math.pi / 4) % (math.pi / 2) - math.pi / 4
 
-        # each detection's wall: the nearest line within `near` whose stretch holds it
         units = (b0 - a0) / np.maximum(lengths, 1e-12)[:, None]
         normals = np.column_stack((-units[:, 1], units[:, 0]))
+
+        def near_lines(points):
+            """(n, W) distances of points (n, 2) from the walls' old lines, inf where the
+            point is further than `near` from the line or from the wall's stretch."""
+            rel = np.asarray(points, float).reshape(-1, 2)[:, None, :] - a0[None, :, :]
+            along = np.einsum("nwj,wj->nw", rel, units)
+            dist = np.abs(np.einsum("nwj,wj->nw", rel, normals))
+            on = (dist <= near) & (along >= -near) & (along <= lengths + near) & (lengths > 0)
+            return np.where(on, dist, np.inf)
+
+        # each detection's wall: the nearest line within `near` whose stretch holds it (of
+        # equally near ones, the last)
+        detections = {cls: np.asarray(points, float).reshape(-1, 2) for cls, points in result.detections.items()}
         owners = {}
-        for cls, points in result.detections.items():
-            points = np.asarray(points, float).reshape(-1, 2)
-            owner = np.full(points.shape[0], -1)
-            best = np.full(points.shape[0], near)
-            for k in range(len(walls)):
-                if lengths[k] <= 0:
-                    continue
-                along = (points - a0[k]) @ units[k]
-                dist = np.abs((points - a0[k]) @ normals[k])
-                inside = (along >= -near) & (along <= lengths[k] + near) & (dist <= best)
-                owner[inside], best[inside] = k, dist[inside]
-            owners[cls] = owner
+        for cls, points in detections.items():
+            dist = near_lines(points)[:, ::-1]
+            owners[cls] = np.where(np.isfinite(dist.min(axis=1)), len(walls) - 1 - np.argmin(dist, axis=1), -1)
         counts = np.zeros(len(walls), int)
         centroids = np.zeros((len(walls), 2))
         for cls, owner in owners.items():
-            points = np.asarray(result.detections[cls], float).reshape(-1, 2)
             for k in np.unique(owner[owner >= 0]):
                 counts[k] += int(np.count_nonzero(owner == k))
-                centroids[k] += points[owner == k].sum(axis=0)
+                centroids[k] += detections[cls][owner == k].sum(axis=0)
 
         # the main direction: that of the line-of-sight walls' detections (a least-squares
         # line through them; the wall's own ends where it has few), the longest weighing most
@@ -3593,8 +3595,7 @@ class WallFusion:
         directions, spans = angles.copy(), lengths.copy()
         for k in los:
             if counts[k] >= self.REGULARISE_MIN_DETECTIONS:
-                points = np.vstack([np.asarray(result.detections[cls], float).reshape(-1, 2)[owner == k]
-                                    for cls, owner in owners.items()])
+                points = np.vstack([detections[cls][owner == k] for cls, owner in owners.items()])
                 _, sv, vt = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)
                 directions[k] = math.atan2(vt[0][1], vt[0][0])
                 spans[k] = math.sqrt(12.0 / points.shape[0]) * sv[0]  # the stretch they cover
@@ -3606,16 +3607,15 @@ class WallFusion:
         # turned onto the main direction or square to it
         a1, b1 = a0.copy(), b0.copy()
         family = {}
+        turned = 0
         for k in range(len(walls)):
             off = float(quarter(angles[k] - main))
             if lengths[k] <= 0 or abs(off) > within:
                 continue
             family[k] = int(round((angles[k] - main - off) / (math.pi / 2))) % 2
             pivot = centroids[k] / counts[k] if counts[k] else 0.5 * (a0[k] + b0[k])
-            c, s = math.cos(-off), math.sin(-off)
-            rot = np.array([[c, -s], [s, c]])
-            a1[k], b1[k] = rot @ (a0[k] - pivot) + pivot, rot @ (b0[k] - pivot) + pivot
-        turned = sum(1 for k in family if abs(float(quarter(angles[k] - main))) > 1e-9)
+            a1[k], b1[k] = bistatic.rotate(a0[k] - pivot, -off) + pivot, bistatic.rotate(b0[k] - pivot, -off) + pivot
+            turned += abs(off) > 1e-9
 
         # pieces of one line put on one line
         merged = 0
@@ -3670,29 +3670,29 @@ class WallFusion:
         if not moved:
             return turned, merged
 
+        # the walls' new lines (their ends move along them below, the lines stay)
+        units1 = (b1 - a1) / np.maximum(lengths, 1e-12)[:, None]
+        normals1 = np.column_stack((-units1[:, 1], units1[:, 0]))
+
         def carried(points, k):
             """points on wall k's old line to the same place along and across its new one."""
-            u1 = (b1[k] - a1[k]) / lengths[k]
-            n1 = np.array([-u1[1], u1[0]])
             rel = np.asarray(points, float) - a0[k]
-            return a1[k] + np.outer(rel @ units[k], u1) + np.outer(rel @ normals[k], n1)
+            return a1[k] + np.outer(rel @ units[k], units1[k]) + np.outer(rel @ normals[k], normals1[k])
 
         def on_line(point, exclude=()):
             """The walls whose old line passes within `near` of point, within their stretch."""
-            rel = point - a0
-            along = np.einsum("ij,ij->i", rel, units)
-            dist = np.abs(np.einsum("ij,ij->i", rel, normals))
-            return [k for k in np.flatnonzero((dist <= near) & (along >= -near) & (along <= lengths + near) & (lengths > 0))
-                    if k not in exclude]
+            return [k for k in np.flatnonzero(np.isfinite(near_lines(point)[0])) if k not in exclude]
 
         def meeting(k, j):
-            """Where wall k's new line meets wall j's, or None when they are near parallel."""
-            u, v = b1[k] - a1[k], b1[j] - a1[j]
-            det = u[0] * v[1] - u[1] * v[0]
-            if abs(det) < math.sin(math.radians(20.0)) * np.hypot(*u) * np.hypot(*v):
+            """Where wall k's new line meets wall j's, or None when they are within 20 degrees
+            of parallel."""
+            try:
+                return bistatic.lines_meet(a1[k], normals1[k], a1[j], normals1[j], min_sin=math.sin(math.radians(20.0)))
+            except bistatic.GeometryError:
                 return None
-            t = ((a1[j][0] - a1[k][0]) * v[1] - (a1[j][1] - a1[k][1]) * v[0]) / det
-            return a1[k] + t * u
+
+        def facing(normal, k):  # wall k's new normal, toward the side `normal` points to
+            return normals1[k] if float(normals1[k] @ normal) >= 0 else -normals1[k]
 
         moved_set = set(moved)
         new_a, new_b = a1.copy(), b1.copy()
@@ -3705,7 +3705,7 @@ class WallFusion:
                         new[k] = point
                         break
         for cls, owner in owners.items():
-            points = np.asarray(result.detections[cls], float).reshape(-1, 2).copy()
+            points = detections[cls].copy()
             for k in np.unique(owner[owner >= 0]):
                 if k in moved_set:
                     points[owner == k] = carried(points[owner == k], k)
@@ -3724,16 +3724,10 @@ class WallFusion:
         for opening in result.openings:
             lines = [k for k in on_line(0.5 * (opening.start_m + opening.end_m)) if k in moved_set]
             if lines:
-                k = lines[0]
-                opening.start_m, opening.end_m = carried(np.vstack((opening.start_m, opening.end_m)), k)
-                u1 = (b1[k] - a1[k]) / lengths[k]
-                n1 = np.array([-u1[1], u1[0]])
-                opening.normal = n1 if float(n1 @ opening.normal) >= 0 else -n1
+                opening.start_m, opening.end_m = carried(np.vstack((opening.start_m, opening.end_m)), lines[0])
+                opening.normal = facing(opening.normal, lines[0])
         for k in moved:
-            w = walls[k]
-            u1 = (b1[k] - a1[k]) / lengths[k]
-            n1 = np.array([-u1[1], u1[0]])
-            w.normal = n1 if float(n1 @ w.normal) >= 0 else -n1
+            walls[k].normal = facing(walls[k].normal, k)
         for k, w in enumerate(walls):
             w.start_m, w.end_m = new_a[k], new_b[k]
         return turned, merged
@@ -3755,17 +3749,15 @@ class WallFusion:
         else:
             return False
 
-        def side(o, d, x):  # |d| times the signed distance of x from the line o + t d
-            return float(d[0] * (x[1] - o[1]) - d[1] * (x[0] - o[0]))
-
+        others = np.asarray(others, int)
+        if others.size == 0:
+            return False
         gap = q - p
-        length = float(np.hypot(*gap))
-        for j in others:
-            d1, d2 = side(p, gap, a[j]), side(p, gap, b[j])
-            d3, d4 = side(a[j], b[j] - a[j], p), side(a[j], b[j] - a[j], q)
-            if d1 * d2 < 0 and d3 * d4 < 0 and min(abs(d1), abs(d2)) > junction_m * length:
-                return True
-        return False
+        # how far each wall's ends lie from the gap's line: a wall ending on it is a junction
+        off_line = np.abs(np.stack([gap[0] * (e[others, 1] - p[1]) - gap[1] * (e[others, 0] - p[0])
+                                    for e in (a, b)])) / float(np.hypot(*gap))
+        through = bistatic.segments_cross(p, q, a[others], b[others]) & (off_line.min(axis=0) > junction_m)
+        return bool(np.any(through))
 
     def _warp_map(self, result, old, new):
         """result (FusedMap) moved in place from poses `old` to `new` ((P, 3) each): every
