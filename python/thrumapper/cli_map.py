@@ -116,6 +116,11 @@ def build_parser():
                         "thrumapper:wall_model, each wall seen from 3 poses or more is labelled plasterboard, brick "
                         "or concrete by how strong its echoes are against the line-of-sight walls' (GeoJSON "
                         "property \"material\"; docs/mapping.md, \"Materials\")")
+    p.add_argument("--poses", metavar="FIRST:END",
+                   help="map only the pose groups FIRST to END-1 (numbered from 0 as the survey holds them; "
+                        "either may be left out, as in 100: for the rest). The fusion maps one pass along a "
+                        "corridor: a survey driven down and back is mapped one pass at a time, e.g. --poses :100 "
+                        "and --poses 100:")
     p.add_argument("--paths", type=int, default=8, metavar="K", help="most echoes JADE reports per pose (default 8)")
     p.add_argument("--stages", type=int, default=1, metavar="N",
                    help="successive-cancellation stages of JADE (default 1: on the example scenes more stages "
@@ -150,15 +155,33 @@ def jade_settings(paths=8, stages=1, max_delay_s=60e-9, angles=360, delays=240):
     return settings
 
 
+def pose_slice(text):
+    """--poses FIRST:END as a slice of the pose groups (None for all). Raises ValueError."""
+    if text is None:
+        return None
+    first, sep, end = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        bounds = [int(v) if v.strip() else None for v in (first, end)]
+    except ValueError:
+        raise ValueError(f"--poses {text}: expected FIRST:END, pose group numbers from 0 (e.g. 0:100 or 100:)") \
+            from None
+    if any(b is not None and b < 0 for b in bounds):
+        raise ValueError(f"--poses {text}: pose group numbers start at 0")
+    return slice(*bounds)
+
+
 def map_survey(survey, fusion_settings=None, settings=None, system_delay_s=None, progress=None, timings=None,
-               refine_on_csi=True, keep_results=False, build=True):
+               refine_on_csi=True, keep_results=False, build=True, pose_groups=None):
     """The whole chain on a read survey: RX calibration, JADE, wall fusion. Returns
     (FusedMap, info dict; info["fusion"] is the WallFusion, its CSI refiner holding the last
     map, for scripts that go on from it; with keep_results, info["jade_results"] the
     arguments WallFusion.add was given for each pose group, in order, for scripts that map
     part of the survey again). The wall model comes from the survey when it has one,
     overriding fusion_settings.material. build=False stops before the map is built (FusedMap
-    None): for scripts that map the JADE results themselves."""
+    None): for scripts that map the JADE results themselves. pose_groups: a slice of the
+    survey's pose groups to map (one pass of a survey driven down and back), default all."""
     from . import jade_pipeline, rx_calibration
     from .wall_fusion import FusionSettings, RadarGeometry, WallFusion
 
@@ -188,7 +211,8 @@ def map_survey(survey, fusion_settings=None, settings=None, system_delay_s=None,
     if refine_on_csi:
         fusion.enable_csi_refinement(info["system_delay_s"])
     kept = info["jade_results"] = [] if keep_results else None
-    for result in jade_pipeline.run_survey(work, settings, system_delay_s, progress, keep_csi=refine_on_csi):
+    for result in jade_pipeline.run_survey(work, settings, system_delay_s, progress, keep_csi=refine_on_csi,
+                                           pose_groups=pose_groups):
         added = (result["pose"], result["paths"], result["frames"][0], result.get("csi"), result.get("tx_weights"))
         fusion.add(*added)
         if kept is not None:
@@ -227,6 +251,27 @@ def main(argv=None):
         survey = read_survey(args.survey)
     except (SurveyFormatError, OSError) as err:
         return fail(str(err))
+    try:
+        pose_groups = pose_slice(args.poses)
+    except ValueError as err:
+        return fail(str(err))
+    import numpy as np
+
+    from .survey import group_frames_by_pose
+    from .wall_fusion import WallFusion, first_turn, track_turn_deg
+
+    all_poses = np.array([pose for _, pose in group_frames_by_pose(survey)], float).reshape(-1, 3)
+    numbers = np.arange(len(all_poses))[pose_groups if pose_groups is not None else slice(None)]
+    if numbers.size == 0 and len(all_poses):
+        return fail(f"--poses {args.poses}: picks none of the survey's {len(all_poses)} pose groups")
+    turn = first_turn(all_poses[numbers], WallFusion.TRACK_MAX_TURN_DEG) if numbers.size else None
+    if turn is not None:
+        at = int(numbers[turn])
+        first, last = int(numbers[0]), int(numbers[-1])
+        return fail(f"the track turns at pose group {at} of {first}-{last} (x {all_poses[at, 0]:.2f} m, "
+                    f"y {all_poses[at, 1]:.2f} m: {track_turn_deg(all_poses[first], all_poses[at]):.0f} deg from "
+                    f"the heading of group {first}); the fusion maps one pass along a corridor: map the passes "
+                    f"one at a time, --poses {first}:{at} and --poses {at}:")
     material = args.material if args.material is not None else "plasterboard"
     if material == "none":
         material = None
@@ -254,7 +299,7 @@ def main(argv=None):
         if not args.quiet:
             print("thrumapper-map: calibrating, estimating, fusing ...", file=sys.stderr)
         fused, info = map_survey(survey, fusion_settings, settings, args.system_delay_s, progress,
-                                 refine_on_csi=not args.no_csi_refinement)
+                                 refine_on_csi=not args.no_csi_refinement, pose_groups=pose_groups)
     except ValueError as err:
         return fail(str(err))
     fused.write_geojson(args.geojson, fused_detections=args.detections == "fused")

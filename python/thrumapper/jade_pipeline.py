@@ -137,8 +137,8 @@ def estimate_system_delay(survey, groups, max_groups=5, oversample=64):
     return float(np.median(unwrapped) % period_s)
 
 
-def run_survey(survey, settings=None, system_delay_s=None, progress=None, keep_csi=False):
-    """JADE on every pose group of a survey.
+def run_survey(survey, settings=None, system_delay_s=None, progress=None, keep_csi=False, pose_groups=None):
+    """JADE on every pose group of a survey (or on the groups a slice `pose_groups` picks).
 
     Yields one dict per group: {"frames": [...], "pose": [x, y, heading],
     "paths": [{"aoa_deg", "delay_s", "power", "stage"}, ...], "model_order": int,
@@ -152,6 +152,8 @@ def run_survey(survey, settings=None, system_delay_s=None, progress=None, keep_c
         system_delay_s = survey.system_delay_s
     if system_delay_s is None:
         system_delay_s = estimate_system_delay(survey, groups)
+    if pose_groups is not None:
+        groups = groups[pose_groups]
     estimators = {}
     projectors = {}
     iterable = progress(groups) if progress else groups

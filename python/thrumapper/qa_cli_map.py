@@ -18,7 +18,7 @@ from gnuradio import gr_unittest
 from gnuradio.thrumapper import building_sim, cli_map, evaluation, ros_map, rx_calibration, scene, survey
 
 
-def corridor_scene(tx_weights, impaired=True, known_delay=True, material="metal", walls=True):
+def corridor_scene(tx_weights, impaired=True, known_delay=True, material="metal", walls=True, back=False):
     """A wall with its face 0.7 m to the right, a 1.6 m scan in 20 cm steps. Metal by default:
     its echo has one face, so JADE's delay is the geometry's and the map can be held to it."""
     data = {
@@ -32,6 +32,8 @@ def corridor_scene(tx_weights, impaired=True, known_delay=True, material="metal"
         "noise": {"power_db": -110},
         "impairments": {"system_delay_s": 27e-9, "system_delay_known": known_delay},
     }
+    if back:  # down the corridor and back: the robot turns round at x = 1.6 m
+        data["trajectory"]["waypoints"] = [[0.0, 0.0], [1.6, 0.0], [1.6, 0.001], [0.0, 0.001]]
     if impaired:
         data["impairments"].update({"rx": {"gain_db_std": 0.5, "phase_deg": "uniform", "delay_ps_std": 20},
                                     "dc_offset_db": -75})
@@ -194,6 +196,32 @@ class qa_cli_map(gr_unittest.TestCase):
         code, _, err = run([self.meta, "--geojson", self.path("x.geojson"), "--material", "plaster", "--quiet"])
         self.assertEqual(code, 2)
         self.assertIn("unknown preset", err)
+
+
+    def test_survey_driven_down_and_back(self):
+        """A survey down the corridor and back (8 poses out, one at the turn, 8 back): the
+        fusion maps one pass at a time, so thrumapper-map refuses it whole with an error that
+        names the pose group where the track turns and the --poses that map each pass; so
+        picked, each pass maps the wall on its face (the way back at heading π)."""
+        meta, _, res = write(corridor_scene(self.null, back=True), self.tmp.name, "back")
+        code, _, err = run([meta, "--geojson", self.path("back.geojson"), "--quiet"])
+        self.assertEqual(code, 2)
+        self.assertIn("the track turns at pose group 8 of 0-16", err)
+        self.assertIn("--poses 0:8 and --poses 8:", err)
+        self.assertFalse(os.path.exists(self.path("back.geojson")))
+        for picked, count in (("0:8", 8), ("9:", 8)):
+            out = self.path(f"back-{picked.replace(':', '_')}.geojson")
+            code, _, err = run([meta, "--geojson", out, "--poses", picked, "--material", "metal", "--quiet"])
+            self.assertEqual(code, 0, err)
+            fused = evaluation.load_map(out)
+            self.assertEqual(len(fused.trajectory), count)
+            points = np.vstack([d["points"] for d in fused.detections])
+            self.assertLess(float(np.max(np.abs(points[:, 1] + 0.701))), 0.03)
+        for bad, says in (("9", "expected FIRST:END"), ("a:b", "expected FIRST:END"), ("-1:", "start at 0"),
+                          ("40:", "picks none of the survey's 17 pose groups")):
+            code, _, err = run([meta, "--geojson", self.path("x.geojson"), f"--poses={bad}", "--quiet"])
+            self.assertEqual(code, 2, bad)
+            self.assertIn(says, err)
 
 
 if __name__ == "__main__":

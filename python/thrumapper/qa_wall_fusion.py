@@ -17,8 +17,8 @@ from gnuradio.thrumapper import bistatic, evaluation
 from gnuradio.thrumapper.survey_blocks import pose_message
 from gnuradio.thrumapper.testing import drifting_corridor, exact_echoes, free_finished_flowgraphs, straight_poses, wait_for
 from gnuradio.thrumapper.wall_fusion import (HIDDEN, LOS, FusionError, FusionSettings, MapOpening, MapWall,
-                                             RadarGeometry, WallFusion, _median_point, _relaxed, map_to_pmt,
-                                             wall_fusion)
+                                             RadarGeometry, TrackTurnedError, WallFusion, _median_point, _relaxed,
+                                             map_to_pmt, wall_fusion)
 
 C = bistatic.SPEED_OF_LIGHT_M_S
 RADAR = RadarGeometry.uca_pair(subcarriers=64)
@@ -1644,6 +1644,39 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertEqual(block.skipped_counts()["no_pose"], 5)
         self.assertEqual(block.num_poses(), 0)
         self.assertEqual(block.last_map().walls, [])
+
+    def test_track_that_turns_back_is_refused(self):
+        """The fusion maps one pass along a corridor. A pose turned more than
+        TRACK_MAX_TURN_DEG (60°) from the first pose's heading is refused with a
+        TrackTurnedError that names the turn, before anything of it is kept; headings either
+        side of ±π are 4.6° apart, not 355°. In the block, the frames after the turn are
+        counted (skipped_after_turn), the map is the pass before it, and the warning is given
+        once, not once a frame."""
+        walls = [([-2.0, -1.0], [12.0, -1.0]), ([-2.0, 1.3], [12.0, 1.3])]
+        fusion = WallFusion(RADAR, exact_settings())
+        fusion.add([0.0, 0.0, 3.1], wall_echoes(np.array([0.0, 0.0, 3.1]), walls))
+        fusion.add([-0.2, 0.0, -3.1], wall_echoes(np.array([-0.2, 0.0, -3.1]), walls))  # 4.6° on, across ±π
+        with self.assertRaisesRegex(TrackTurnedError, r"turned 69 deg .*first pose's heading.*survey of their own"):
+            fusion.add([-0.4, 0.0, 3.1 + 1.2], wall_echoes(np.array([-0.4, 0.0, 3.1 + 1.2]), walls))
+        self.assertEqual((fusion.num_poses, fusion.counts["messages"]), (2, 2))
+        self.assertIsInstance(TrackTurnedError("x"), FusionError)
+
+        poses = straight_poses(0.0, 3.0)
+        back = [np.array([3.0 - 0.2 * i, 0.0, math.pi]) for i in range(1, 6)]
+        warnings_seen = []
+
+        def post(block):
+            block._warn = warnings_seen.append
+            for i, pose in enumerate(list(poses) + back):
+                block._post(pmt.intern("paths"), self.paths_message(i, wall_echoes(pose, walls), pose))
+
+        block, _, _ = self.run_block(post, update_interval=100, expect_maps=0, timeout_s=0.0,
+                                     until=lambda b: b.skipped_counts()["after_turn"] == len(back))
+        self.assertEqual(block.num_poses(), len(poses))
+        self.assertEqual(sum("turned 180 deg" in w for w in warnings_seen), 1, warnings_seen)
+        fused = block.last_map()
+        self.assertEqual(fused.stats["skipped_after_turn"], len(back))
+        self.assertLess(abs(0.5 * (wall_near(fused, -1.0).start_m[1] + wall_near(fused, -1.0).end_m[1]) + 1.0), 0.01)
 
     def test_flowgraph_end_to_end(self):
         """survey_source -> jade_estimator -> wall_fusion on a simulated survey (a metal wall
