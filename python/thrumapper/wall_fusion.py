@@ -750,7 +750,8 @@ class WallFusion:
     #: ...and the headings this fraction (a quarter: until 2026-11-30 the headings were moved
     #: half of the already halved step by a slip, and every measurement since was made so;
     #: moved half the way, as the positions are, the 24 office maps came out worse, line of
-    #: sight 0.053 -> 0.063 m and hidden 0.068 -> 0.113 m median, docs/mapping.md)
+    #: sight 0.053 -> 0.063 m and hidden 0.068 -> 0.113 m median; an eighth, 0.057 m and
+    #: 0.082 m; docs/mapping.md)
     ADJUSTMENT_HEADING_RELAXATION = 0.25
     #: a pose's CSI fits use its latest frames up to this many (a robot standing still, or a
     #: survey replayed in a loop, would otherwise pile up frames without end)
