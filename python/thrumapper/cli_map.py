@@ -4,6 +4,7 @@
 """thrumapper-map: a CSI survey in, a floor plan out (GeoJSON, PNG, ROS map)."""
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -121,6 +122,11 @@ def build_parser():
                         "either may be left out, as in 100: for the rest). The fusion maps one pass along a "
                         "corridor: a survey driven down and back is mapped one pass at a time, e.g. --poses :100 "
                         "and --poses 100:")
+    p.add_argument("--passes", action="store_true",
+                   help="a survey that turns (down the corridor and back): map each pass along the corridor on "
+                        "its own and merge them into one map, each later pass moved onto the previous pass's "
+                        "corrected end and one wall's pieces put on one line; the poses of the turn itself "
+                        "(passes of fewer than --min-wall-poses) are left out")
     p.add_argument("--paths", type=int, default=8, metavar="K", help="most echoes JADE reports per pose (default 8)")
     p.add_argument("--stages", type=int, default=1, metavar="N",
                    help="successive-cancellation stages of JADE (default 1: on the example scenes more stages "
@@ -258,20 +264,28 @@ def main(argv=None):
     import numpy as np
 
     from .survey import group_frames_by_pose
-    from .wall_fusion import WallFusion, first_turn, track_turn_deg
+    from .wall_fusion import WallFusion, first_turn, merge_passes, survey_passes, track_turn_deg
 
     all_poses = np.array([pose for _, pose in group_frames_by_pose(survey)], float).reshape(-1, 3)
     numbers = np.arange(len(all_poses))[pose_groups if pose_groups is not None else slice(None)]
     if numbers.size == 0 and len(all_poses):
         return fail(f"--poses {args.poses}: picks none of the survey's {len(all_poses)} pose groups")
     turn = first_turn(all_poses[numbers], WallFusion.TRACK_MAX_TURN_DEG) if numbers.size else None
-    if turn is not None:
+    passes = [(int(numbers[0]), int(numbers[-1]) + 1)] if numbers.size else []
+    in_turns = 0
+    if turn is not None and args.passes:
+        found, in_turns = survey_passes(all_poses[numbers], WallFusion.TRACK_MAX_TURN_DEG, args.min_wall_poses)
+        passes = [(int(numbers[a]), int(numbers[b - 1]) + 1) for a, b in found]
+        if not passes:
+            return fail(f"--passes: no pass of at least {args.min_wall_poses} poses (--min-wall-poses) along the track")
+    elif turn is not None:
         at = int(numbers[turn])
         first, last = int(numbers[0]), int(numbers[-1])
         return fail(f"the track turns at pose group {at} of {first}-{last} (x {all_poses[at, 0]:.2f} m, "
                     f"y {all_poses[at, 1]:.2f} m: {track_turn_deg(all_poses[first], all_poses[at]):.0f} deg from "
                     f"the heading of group {first}); the fusion maps one pass along a corridor: map the passes "
-                    f"one at a time, --poses {first}:{at} and --poses {at}:")
+                    f"one at a time, --poses {first}:{at} and --poses {at}:, or give --passes to map each and "
+                    "merge them")
     material = args.material if args.material is not None else "plasterboard"
     if material == "none":
         material = None
@@ -298,8 +312,20 @@ def main(argv=None):
     try:
         if not args.quiet:
             print("thrumapper-map: calibrating, estimating, fusing ...", file=sys.stderr)
-        fused, info = map_survey(survey, fusion_settings, settings, args.system_delay_s, progress,
-                                 refine_on_csi=not args.no_csi_refinement, pose_groups=pose_groups)
+        if len(passes) > 1:
+            maps = []
+            for n, (first, end) in enumerate(passes):
+                if not args.quiet:
+                    print(f"thrumapper-map: pass {n + 1} of {len(passes)}: pose groups {first}-{end - 1}", file=sys.stderr)
+                fused, info = map_survey(survey, dataclasses.replace(fusion_settings), settings, args.system_delay_s,
+                                         progress, refine_on_csi=not args.no_csi_refinement,
+                                         pose_groups=slice(first, end))
+                maps.append(fused)
+            fused = merge_passes(maps, info["fusion"])
+            fused.stats["poses_in_turns"] = in_turns
+        else:
+            fused, info = map_survey(survey, fusion_settings, settings, args.system_delay_s, progress,
+                                     refine_on_csi=not args.no_csi_refinement, pose_groups=pose_groups)
     except ValueError as err:
         return fail(str(err))
     fused.write_geojson(args.geojson, fused_detections=args.detections == "fused")

@@ -202,12 +202,14 @@ class qa_cli_map(gr_unittest.TestCase):
         """A survey down the corridor and back (8 poses out, one at the turn, 8 back): the
         fusion maps one pass at a time, so thrumapper-map refuses it whole with an error that
         names the pose group where the track turns and the --poses that map each pass; so
-        picked, each pass maps the wall on its face (the way back at heading π)."""
+        picked, each pass maps the wall on its face (the way back at heading π); with --passes
+        both are mapped and merged into one map (the pose of the turn left out), the wall on its
+        face."""
         meta, _, res = write(corridor_scene(self.null, back=True), self.tmp.name, "back")
         code, _, err = run([meta, "--geojson", self.path("back.geojson"), "--quiet"])
         self.assertEqual(code, 2)
         self.assertIn("the track turns at pose group 8 of 0-16", err)
-        self.assertIn("--poses 0:8 and --poses 8:", err)
+        self.assertIn("--poses 0:8 and --poses 8:, or give --passes", err)
         self.assertFalse(os.path.exists(self.path("back.geojson")))
         for picked, count in (("0:8", 8), ("9:", 8)):
             out = self.path(f"back-{picked.replace(':', '_')}.geojson")
@@ -217,6 +219,22 @@ class qa_cli_map(gr_unittest.TestCase):
             self.assertEqual(len(fused.trajectory), count)
             points = np.vstack([d["points"] for d in fused.detections])
             self.assertLess(float(np.max(np.abs(points[:, 1] + 0.701))), 0.03)
+        # --passes: both passes mapped and merged into one map, the turn's own pose left out
+        out = self.path("back-passes.geojson")
+        code, _, err = run([meta, "--geojson", out, "--passes", "--material", "metal", "--quiet",
+                            "--stats", self.path("back-passes.json")])
+        self.assertEqual(code, 0, err)
+        fused = evaluation.load_map(out)
+        self.assertEqual(len(fused.trajectory), 16)
+        walls = [w for w in fused.walls if w["class"] == "line_of_sight"]
+        self.assertTrue(walls)
+        for w in walls:
+            self.assertLess(float(np.max(np.abs(np.asarray(w["coordinates"])[:, 1] + 0.701))), 0.03, w)
+        points = np.vstack([d["points"] for d in fused.detections])
+        self.assertLess(float(np.max(np.abs(points[:, 1] + 0.701))), 0.03)
+        with open(self.path("back-passes.json"), encoding="utf-8") as handle:
+            stats = json.load(handle)
+        self.assertEqual((len(stats["passes"]), stats["poses_in_turns"], stats["poses"]), (2, 1, 16))
         for bad, says in (("9", "expected FIRST:END"), ("a:b", "expected FIRST:END"), ("-1:", "start at 0"),
                           ("40:", "picks none of the survey's 17 pose groups")):
             code, _, err = run([meta, "--geojson", self.path("x.geojson"), f"--poses={bad}", "--quiet"])

@@ -18,7 +18,7 @@ from gnuradio.thrumapper.survey_blocks import pose_message
 from gnuradio.thrumapper.testing import drifting_corridor, exact_echoes, free_finished_flowgraphs, straight_poses, wait_for
 from gnuradio.thrumapper.wall_fusion import (HIDDEN, LOS, FusionError, FusionSettings, MapOpening, MapWall,
                                              RadarGeometry, TrackTurnedError, WallFusion, _median_point, _relaxed,
-                                             map_to_pmt, wall_fusion)
+                                             map_to_pmt, merge_passes, wall_fusion)
 
 C = bistatic.SPEED_OF_LIGHT_M_S
 RADAR = RadarGeometry.uca_pair(subcarriers=64)
@@ -1677,6 +1677,57 @@ class qa_wall_fusion(gr_unittest.TestCase):
         fused = block.last_map()
         self.assertEqual(fused.stats["skipped_after_turn"], len(back))
         self.assertLess(abs(0.5 * (wall_near(fused, -1.0).start_m[1] + wall_near(fused, -1.0).end_m[1]) + 1.0), 0.01)
+
+    def test_passes_merged_into_one_map(self):
+        """The drifting corridor (odometry 1 % long, 0.5°/m) driven down and back, the robot
+        turning on the spot at the far end: the odometry's error runs on through the turn, so
+        the pass back starts 1.7 m and 10° off. Each pass mapped on its own (the one back
+        from its own first odometry pose) and merged (merge_passes): the pass back is moved
+        onto the first pass's corrected end, and the merged trajectory is within a few
+        centimetres of the true one over both passes; the corridor's walls from both passes
+        lie on their faces, put on one line each (to 1 mm); corners keep their walls' indices."""
+        true_out, _, walls, frames = drifting_corridor()
+        true_back = true_out[::-1].copy()
+        true_back[:, 2] = math.pi
+        true = np.vstack((true_out, true_back))
+        reported = [true[0].copy()]
+        for a, b in zip(true[:-1], true[1:]):
+            step = bistatic.rotate(b[:2] - a[:2], -a[2])  # the true motion in the robot's frame
+            length = float(np.hypot(*step))
+            last = reported[-1]
+            moved = bistatic.rotate(1.01 * step, last[2])
+            reported.append(np.array([last[0] + moved[0], last[1] + moved[1],
+                                      math.remainder(last[2] + (b[2] - a[2]) + math.radians(0.5) * length,
+                                                     2.0 * math.pi)]))
+        reported = np.array(reported)
+        n = len(true_out)
+        self.assertGreater(float(np.hypot(*(reported[n, :2] - true[n, :2]))), 1.0)
+        maps, fusions = [], []
+        for part in (slice(0, n), slice(n, 2 * n)):
+            fusion = WallFusion(RADAR, exact_settings())
+            for pose_true, pose_reported in zip(true[part], reported[part]):
+                fusion.add(pose_reported, wall_echoes(pose_true, walls, points=frames))
+            maps.append(fusion.build_map())
+            fusions.append(fusion)
+        alone = float(np.sqrt(np.mean(np.sum((maps[1].trajectory[:, :2] - true_back[:, :2]) ** 2, axis=1))))
+        self.assertGreater(alone, 1.0)  # the pass back alone, in its own frame
+        merged = merge_passes(maps, fusions[1])
+        self.assertEqual(len(merged.trajectory), 2 * n)
+        error = np.hypot(*(merged.trajectory[:, :2] - true[:, :2]).T)
+        self.assertLess(float(np.sqrt(np.mean(error ** 2))), 0.06, f"trajectory RMS {np.sqrt(np.mean(error ** 2)):.3f} m")
+        for y in (-1.0, 1.0):
+            pieces = [w for w in merged.walls if w.cls == "line_of_sight" and abs(w.normal[1]) > 0.99
+                      and abs(0.5 * (w.start_m[1] + w.end_m[1]) - y) < 0.3]
+            self.assertGreaterEqual(len(pieces), 2)  # one from each pass at least
+            offsets = [0.5 * (w.start_m[1] + w.end_m[1]) for w in pieces]
+            self.assertLess(max(abs(o - y) for o in offsets), 0.05, offsets)
+            self.assertLess(max(offsets) - min(offsets), 1e-3)  # on one line
+        self.assertEqual(len(merged.stats["passes"]), 2)
+        self.assertEqual(merged.stats["poses"], 2 * n)
+        for c in merged.corners:
+            self.assertTrue(all(0 <= k < len(merged.walls) for k in c.walls))
+        with self.assertRaisesRegex(FusionError, "no maps"):
+            merge_passes([])
 
     def test_flowgraph_end_to_end(self):
         """survey_source -> jade_estimator -> wall_fusion on a simulated survey (a metal wall

@@ -433,6 +433,94 @@ def first_turn(poses, max_turn_deg):
     return None
 
 
+def survey_passes(poses, max_turn_deg, min_poses):
+    """A survey's passes along its corridor: [(first, end), ...] index ranges of (P, 3) poses,
+    each holding the poses within max_turn_deg of its own first pose's heading
+    (track_turn_deg), and the number of poses left out because their pass was shorter than
+    min_poses (the robot turning round between two passes)."""
+    passes, dropped, first = [], 0, 0
+    for i in range(1, len(poses) + 1):
+        if i == len(poses) or track_turn_deg(poses[first], poses[i]) > max_turn_deg:
+            if i - first >= min_poses:
+                passes.append((first, i))
+            else:
+                dropped += i - first
+            first = i
+    return passes, dropped
+
+
+def merge_passes(maps, fusion=None):
+    """One map from the maps of a survey's consecutive passes (survey_passes, each mapped on
+    its own): the first pass's frame is the map's. Each later pass was mapped from its own
+    first odometry pose, which carries the drift of everything before it: it is moved by the
+    rigid move that takes the previous pass's last odometry pose onto that pass's corrected
+    pose (the wheels between two passes' ends, a turn on the spot, are taken as right).
+    Walls, corners, detections, echoes, scatterers, openings and the trajectory move with it;
+    the odometry stays as reported. With `fusion` (a WallFusion, for its rules), the merged
+    map is squared, which puts the pieces one wall has from each pass on one line
+    (WallFusion._regularise). Counts in stats are summed over the passes; stats["passes"]
+    holds each pass's own."""
+    if not maps:
+        raise FusionError("merge_passes: no maps")
+    walls, corners, scatterers, openings = [], [], [], []
+    detections = {c: [] for c in CLASSES}
+    echoes = {c: [] for c in CLASSES}
+    trajectory, odometry, frame_indices = [], [], []
+    previous = None  # (the previous pass's last odometry pose, its corrected pose in the map's frame)
+    for m in maps:
+        if previous is None:
+            turn, at, to = 0.0, np.zeros(2), np.zeros(2)
+        else:
+            (o, c) = previous
+            turn, at, to = math.remainder(c[2] - o[2], 2.0 * math.pi), o[:2], c[:2]
+        rot = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
+
+        def moved(points):
+            return (np.asarray(points, float).reshape(-1, 2) - at) @ rot.T + to
+
+        offset = len(walls)
+        for w in m.walls:
+            walls.append(dataclasses.replace(w, start_m=moved(w.start_m)[0], end_m=moved(w.end_m)[0],
+                                             normal=rot @ w.normal, corners=list(w.corners)))
+        for c in m.corners:
+            corners.append(dataclasses.replace(c, position_m=moved(c.position_m)[0],
+                                               walls=tuple(offset + int(k) for k in c.walls)))
+        scatterers.extend((moved(position)[0], count) for position, count in m.scatterers)
+        for o in m.openings:
+            openings.append(dataclasses.replace(o, start_m=moved(o.start_m)[0], end_m=moved(o.end_m)[0],
+                                                normal=rot @ o.normal))
+        for cls in CLASSES:
+            for store, points in ((detections, m.detections), (echoes, m.echoes)):
+                if cls in points and len(points[cls]):
+                    store[cls].append(moved(points[cls]))
+        poses = np.array(m.trajectory, float).reshape(-1, 3)
+        poses = np.column_stack((moved(poses[:, :2]), [math.remainder(h + turn, 2.0 * math.pi) for h in poses[:, 2]]))
+        trajectory.append(poses)
+        odometry.append(np.array(m.odometry, float).reshape(-1, 3))
+        frame_indices.extend(m.frame_indices)
+        if len(poses):
+            previous = (odometry[-1][-1], poses[-1])
+    stats = {}
+    for m in maps:
+        for key, value in m.stats.items():
+            if isinstance(value, (int, float)) and not isinstance(value, bool) and isinstance(stats.get(key, 0), (int, float)):
+                stats[key] = stats.get(key, 0) + value
+            elif isinstance(value, dict) and key == "timings":
+                stats[key] = {k: stats.get(key, {}).get(k, 0.0) + v for k, v in value.items()}
+            else:
+                stats.setdefault(key, value)
+    stats["passes"] = [dict(m.stats) for m in maps]
+    result = FusedMap(walls, corners, scatterers,
+                      {c: np.vstack(p) for c, p in detections.items() if p},
+                      {c: np.vstack(p) for c, p in echoes.items() if p},
+                      np.vstack(trajectory), np.vstack(odometry), frame_indices, stats, openings)
+    if fusion is not None:
+        squared, shared = fusion._regularise(result)
+        stats["walls_squared_across_passes"], stats["walls_on_shared_lines_across_passes"] = squared, shared
+    stats.update({"walls": len(result.walls), "corners": len(result.corners), "openings": len(result.openings)})
+    return result
+
+
 def _relaxed(previous, adjusted, fraction, heading_fraction):
     """Poses moved from `previous` toward `adjusted` (P, 3): the positions `fraction` of the
     way, the headings `heading_fraction` of it, the short way round (a track heading west has
