@@ -426,11 +426,10 @@ def track_turn_deg(first_pose, pose):
 
 def first_turn(poses, max_turn_deg):
     """The index of the first of (P, 3) poses turned more than max_turn_deg from the first's
-    heading (track_turn_deg), or None when the track never turns so far."""
-    for i, pose in enumerate(poses):
-        if track_turn_deg(poses[0], pose) > max_turn_deg:
-            return i
-    return None
+    heading (track_turn_deg), or None when the track never turns so far: where survey_passes
+    would start the second pass."""
+    passes, _ = survey_passes(poses, max_turn_deg, 1)
+    return passes[1][0] if len(passes) > 1 else None
 
 
 def survey_passes(poses, max_turn_deg, min_poses):
@@ -468,33 +467,31 @@ def merge_passes(maps, fusion=None):
     trajectory, odometry, frame_indices = [], [], []
     previous = None  # (the previous pass's last odometry pose, its corrected pose in the map's frame)
     for m in maps:
-        if previous is None:
-            turn, at, to = 0.0, np.zeros(2), np.zeros(2)
-        else:
-            (o, c) = previous
-            turn, at, to = math.remainder(c[2] - o[2], 2.0 * math.pi), o[:2], c[:2]
-        rot = np.array([[math.cos(turn), -math.sin(turn)], [math.sin(turn), math.cos(turn)]])
+        # from the frame of the previous pass's last odometry pose to that of its corrected one
+        last_odometry, last_corrected = previous if previous is not None else (np.zeros(3), np.zeros(3))
+        turn = float(last_corrected[2] - last_odometry[2])
 
         def moved(points):
-            return (np.asarray(points, float).reshape(-1, 2) - at) @ rot.T + to
+            local = bistatic.world_to_robot(np.asarray(points, float).reshape(-1, 2), last_odometry)
+            return bistatic.robot_to_world(local, last_corrected)
 
         offset = len(walls)
         for w in m.walls:
             walls.append(dataclasses.replace(w, start_m=moved(w.start_m)[0], end_m=moved(w.end_m)[0],
-                                             normal=rot @ w.normal, corners=list(w.corners)))
+                                             normal=bistatic.rotate(w.normal, turn), corners=list(w.corners)))
         for c in m.corners:
             corners.append(dataclasses.replace(c, position_m=moved(c.position_m)[0],
                                                walls=tuple(offset + int(k) for k in c.walls)))
         scatterers.extend((moved(position)[0], count) for position, count in m.scatterers)
         for o in m.openings:
             openings.append(dataclasses.replace(o, start_m=moved(o.start_m)[0], end_m=moved(o.end_m)[0],
-                                                normal=rot @ o.normal))
+                                                normal=bistatic.rotate(o.normal, turn)))
         for cls in CLASSES:
             for store, points in ((detections, m.detections), (echoes, m.echoes)):
                 if cls in points and len(points[cls]):
                     store[cls].append(moved(points[cls]))
         poses = np.array(m.trajectory, float).reshape(-1, 3)
-        poses = np.column_stack((moved(poses[:, :2]), [math.remainder(h + turn, 2.0 * math.pi) for h in poses[:, 2]]))
+        poses = np.column_stack((moved(poses[:, :2]), _wrap(poses[:, 2] + turn)))
         trajectory.append(poses)
         odometry.append(np.array(m.odometry, float).reshape(-1, 3))
         frame_indices.extend(m.frame_indices)
@@ -692,9 +689,7 @@ def _median_point(points, heading):
     world's x and y: a coordinate-wise median depends on the axes it is taken on, and the
     map must not depend on which way the world's axes lie. Along and across the survey's
     first heading it is the world's own when that heading is 0."""
-    c, s = math.cos(heading), math.sin(heading)
-    rotation = np.array([[c, -s], [s, c]])
-    return rotation @ np.median(np.asarray(points, float) @ rotation, axis=0)
+    return bistatic.rotate(np.median(bistatic.rotate(points, -heading), axis=0), heading)
 
 
 def _line_fit(points, weights, normals):
