@@ -35,6 +35,7 @@ examples:
   thrumapper-eval map.geojson truth.geojson --coverage-tolerance 0.2
   thrumapper-eval map.geojson truth.geojson --missed 20     # list more of the walls missed
   thrumapper-eval map.geojson truth.geojson --sources 10    # and more of the error sources
+  thrumapper-eval map.geojson truth.geojson --align         # the map's shape, its frame's turn taken out
 
 exit status: 0 scored, 2 a file is missing or breaks the format (the message names the field).
 """
@@ -60,6 +61,13 @@ def _parser():
     parser.add_argument("--opening-tolerance", type=float, default=0.5, metavar="M",
                         help="a true open doorway counts as found when a map opening's middle is within this "
                              "distance of its middle (default 0.5 m)")
+    parser.add_argument("--align", action="store_true",
+                        help="first move the map by the rigid move (turn and shift) that puts its trajectory "
+                             "closest to the true one, pose by pose, and score what is left: the map's shape "
+                             "without its frame's error (a map is drawn in its first pose's frame; a small turn "
+                             "of that frame moves walls 20 m away by centimetres). The table's first lines say "
+                             "the move; the JSON has it as \"aligned\". Both trajectories must have the "
+                             "same number of poses")
     parser.add_argument("--missed", type=int, default=5, metavar="N",
                         help="list the N true walls with the most length uncovered below the table "
                              "(default 5; 0 lists none)")
@@ -81,15 +89,20 @@ def main(argv=None) -> int:
         if getattr(args, name) < 0:
             print(f"thrumapper-eval: error: --{name} must be >= 0", file=sys.stderr)
             return 2
+    aligned = None
     try:
         map_data = evaluation.load_map(args.map)
         truth_data = evaluation.load_map(args.truth)
+        if args.align:
+            map_data, aligned = evaluation.align_to_truth(map_data, truth_data)
     except evaluation.MapFormatError as err:
         print(f"thrumapper-eval: error: {err}", file=sys.stderr)
         return 2
     scores = evaluation.score_map(map_data, truth_data, coverage_tolerance_m=args.coverage_tolerance,
                                   false_tolerance_m=args.false_tolerance, corner_tolerance_m=args.corner_tolerance,
                                   opening_tolerance_m=args.opening_tolerance)
+    if aligned is not None:
+        scores["aligned"] = aligned
     if args.json:
         print(json.dumps(scores, indent=2))
     else:

@@ -282,6 +282,54 @@ class qa_evaluation(gr_unittest.TestCase):
                               ("66.1 %     2 detections, RMS 2.00 m, on a true wall of the other class: back",),
                               "nearest of the class: corridor", "squared error they carry")
 
+    def test_align_takes_the_frames_turn_out(self):
+        """A map exact in shape but drawn in a frame turned 1 deg about its first pose and
+        shifted (0.10, -0.05) m: plain scoring sees the turn (a wall point 9.5 m along is
+        0.17 m off), --align finds the move back and scores it as the exact map it is."""
+        truth = _truth()
+        truth["features"].append(_feature("MultiPoint", [[x + 0.5, -1.0] for x in range(10)], kind="detections",
+                                          **{"class": "line_of_sight"}))
+        truth["features"].append(_feature("MultiPoint", [[x + 0.5, -3.0] for x in range(10)], kind="detections",
+                                          **{"class": "hidden"}))
+        angle = math.radians(1.0)
+        turn = np.array([[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]])
+        shift = np.array([0.10, -0.05])
+        turned = copy.deepcopy(truth)
+        for feature in turned["features"]:
+            points = np.asarray(feature["geometry"]["coordinates"], float)
+            feature["geometry"]["coordinates"] = (points @ turn.T + shift).tolist()
+        plain = evaluation.score_map(turned, truth)
+        # the LoS points (x + 0.5, -1) land x sin(1 deg) + (1 - cos(1 deg)) - 0.05 from y = -1
+        far_point = 9.5 * math.sin(angle) + (1.0 - math.cos(angle)) - 0.05
+        self.assertAlmostEqual(plain["classes"]["line_of_sight"]["detections"]["max_m"], far_point, delta=1e-9)
+        moved, move = evaluation.align_to_truth(turned, truth)
+        self.assertAlmostEqual(move["rotation_deg"], -1.0, delta=1e-9)
+        self.assertEqual(move["poses"], 10)
+        scores = evaluation.score_map(moved, truth)
+        for cls in evaluation.CLASSES:
+            self.assertLess(scores["classes"][cls]["detections"]["rms_m"], 1e-9)
+            self.assertAlmostEqual(scores["classes"][cls]["coverage"], 1.0, delta=1e-9)
+        self.assertLess(scores["trajectory"]["rms_m"], 1e-9)
+        self.assertEqual(scores["corners"]["found"], 2)
+        with tempfile.TemporaryDirectory() as tmp:
+            map_path, truth_path, short_path = (os.path.join(tmp, n) for n in ("m.geojson", "t.geojson", "s.geojson"))
+            short = copy.deepcopy(turned)
+            for feature in short["features"]:
+                if feature["properties"]["kind"] == "trajectory":
+                    feature["geometry"]["coordinates"] = feature["geometry"]["coordinates"][:7]
+            for path, data in ((map_path, turned), (truth_path, truth), (short_path, short)):
+                with open(path, "w") as handle:
+                    json.dump(data, handle)
+            status, out, _ = _cli(map_path, truth_path, "--align")
+            self.assertEqual(status, 0)
+            self.assertIn("aligned: the map turned -1.000 deg", out)
+            status, out, _ = _cli(map_path, truth_path, "--align", "--json")
+            self.assertAlmostEqual(json.loads(out)["aligned"]["rotation_deg"], -1.0, delta=1e-9)
+            # trajectories of other lengths cannot be paired pose by pose: one clear error
+            status, _, err = _cli(short_path, truth_path, "--align")
+            self.assertEqual(status, 2)
+            self.assertIn("trajectory has 7 poses and the truth's 10", err)
+
     def test_truth_scores_perfectly_against_itself(self):
         try:
             from gnuradio.thrumapper import building_sim, scene

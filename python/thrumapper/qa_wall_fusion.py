@@ -633,6 +633,7 @@ class qa_wall_fusion(gr_unittest.TestCase):
         shoulder just over the ratio moves the edge only a little off the pose under it; a dip
         of one pose is no doorway either way."""
         fusion = WallFusion(RADAR, exact_settings())
+        fusion.OPENING_EDGE_RATIO = None  # the edges at OPENING_GAIN_RATIO (the rule below: the next test)
         line = {"centre": np.array([0.0, 1.0]), "direction": np.array([1.0, 0.0]), "normal": np.array([0.0, -1.0]),
                 "t0": 0.0, "t1": 10.0}
         members = [dict(line, centre=np.array([5.0, 1.0]), t0=-5.0, t1=5.0)]
@@ -660,6 +661,39 @@ class qa_wall_fusion(gr_unittest.TestCase):
         self.assertEqual(len(found), 1)
         self.assertAlmostEqual(found[0][0], 0.5 * (7.19 + 7.39), places=6)
         self.assertAlmostEqual(found[0][1], 7.99 - 0.2 * 0.48 / 0.58, places=6)
+
+    def test_doorway_a_run_under_the_edge_ratio_around_a_deep_pose(self):
+        """OPENING_EDGE_RATIO (0.4): a doorway is the run of poses under 0.4 around a pose
+        under OPENING_GAIN_RATIO (0.3). The open door of office_floor seed 30 (a draw the map
+        was not tuned on), poses every 0.2 m: 0.40, 0.30, 0.23, 0.33 of its wall's gain, one
+        pose under 0.3, which the rule of two poses under 0.3 missed. Its edges are where the
+        gain crosses 0.4: at x = 13.7 m (the pose at 0.40 itself) and 14.5 - 0.2 * 0.35 / 0.42 m
+        (between 0.33 and 0.75), 0.63 m wide. A closed leaf (0.45-0.48: a wooden door holds
+        half a plasterboard wall's echo or more) and a shallow dip with no pose under 0.3 are
+        no doorway."""
+        fusion = WallFusion(RADAR, exact_settings())
+        self.assertEqual(fusion.OPENING_EDGE_RATIO, 0.4)
+        line = {"centre": np.array([0.0, 1.0]), "direction": np.array([1.0, 0.0]), "normal": np.array([0.0, -1.0]),
+                "t0": 0.0, "t1": 20.0}
+        members = [dict(line, centre=np.array([10.0, 1.0]), t0=-10.0, t1=10.0)]
+        t = np.round(np.arange(12.9, 15.95, 0.2), 2)
+        ratio = np.array([1.10, 1.12, 0.99, 0.89, 0.40, 0.30, 0.23, 0.33, 0.75, 1.12, 1.08, 1.02, 0.99, 1.00, 0.91, 1.07])
+        self.assertEqual(t.size, ratio.size)
+        found = fusion._openings_along(line, [(0.0, 20.0)], members, t, ratio)
+        self.assertEqual(len(found), 1)
+        t0, t1, opening = found[0]
+        self.assertAlmostEqual(t0, 13.7, places=9)
+        self.assertAlmostEqual(t1, 14.5 - 0.2 * 0.35 / 0.42, places=9)
+        self.assertAlmostEqual(opening.gain_ratio, 0.33, places=9)  # the run's highest
+        fusion.OPENING_EDGE_RATIO = None
+        self.assertEqual(fusion._openings_along(line, [(0.0, 20.0)], members, t, ratio), [])
+        fusion.OPENING_EDGE_RATIO = 0.4
+        closed = ratio.copy()
+        closed[4:8] = [0.48, 0.45, 0.46, 0.47]
+        self.assertEqual(fusion._openings_along(line, [(0.0, 20.0)], members, t, closed), [])
+        shallow = ratio.copy()
+        shallow[4:8] = [0.38, 0.33, 0.31, 0.36]
+        self.assertEqual(fusion._openings_along(line, [(0.0, 20.0)], members, t, shallow), [])
 
     def test_doorway_lines_bridge_a_longer_gap(self):
         """The doorway test (_openings) searches each line of the line-of-sight walls between

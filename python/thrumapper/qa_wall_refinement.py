@@ -1018,9 +1018,14 @@ class qa_wall_refinement(gr_unittest.TestCase):
         double door open), and a brick wall 2 m behind it (face y = -3.0), surveyed along
         x = 0-8 m with the TX beam on that side. Through the opening the brick wall is in plain
         view: the robot's rays to it cross no wall, and the CSI holds next to nothing of the
-        corridor wall's echo there (_seen_through_opening). The brick wall is drawn hidden,
-        with a line-of-sight piece in the opening and line-of-sight detections there only;
-        with the split turned off (CLASS_SPLIT_MIN_POSES = 0) it is hidden from end to end."""
+        corridor wall's echo there (_seen_through_opening). The truth classes the brick wall
+        line of sight from x = -1.2 m on (some pose sees it through the opening). The map
+        draws it line of sight across the opening, over 2 m or more, and only where the truth
+        does, with line-of-sight detections there only (until 2026-11-30 only in the opening
+        itself: the doorway test found no opening in the east piece's line, whose dip came
+        0.35 at its edge, "Held-out seeds"); with the split and the doorway test turned off
+        (CLASS_SPLIT_MIN_POSES = 0, OPENING_MIN_POSES = 0: the view through a found doorway
+        classes it too) it is hidden from end to end."""
         sc = scene.load_scene(straight_survey_data(
             [{"name": "corridor west", "segment": [[-2.0, -1.075], [3.5, -1.075]], "material": "plasterboard"},
              {"name": "corridor east", "segment": [[5.7, -1.075], [10.0, -1.075]], "material": "plasterboard"},
@@ -1030,20 +1035,28 @@ class qa_wall_refinement(gr_unittest.TestCase):
         def back_wall(fused):
             return [w for w in fused.walls if w.source == "echoes" and abs(0.5 * (w.start_m[1] + w.end_m[1]) + 3.0) < 0.3]
 
+        truth = building_sim.truth_geojson(sc)
+        in_sight = [sorted(p[0] for p in f["geometry"]["coordinates"]) for f in truth["features"]
+                    if f["properties"].get("name") == "back" and f["properties"]["class"] == "line_of_sight"]
+        self.assertEqual(len(in_sight), 1, in_sight)
+        sight_x0, sight_x1 = in_sight[0]
+        self.assertLess(abs(sight_x0 + 1.2), 0.15, in_sight)  # the truth's own geometry: the view's edge
         fused = mapped_with(sc, res)
         pieces = back_wall(fused)
-        seen = [w for w in pieces if w.cls == "line_of_sight"]
-        self.assertEqual(len(seen), 1, pieces)
-        self.assertTrue(any(w.cls == "hidden" for w in pieces), pieces)
-        xs = sorted((seen[0].start_m[0], seen[0].end_m[0]))
-        self.assertGreater(xs[0], 3.0, seen)  # in the opening, half a pose step either side
-        self.assertLess(xs[1], 6.2, seen)
+        seen = [sorted((w.start_m[0], w.end_m[0])) for w in pieces if w.cls == "line_of_sight"]
+        self.assertTrue(seen, pieces)
+        self.assertGreaterEqual(sum(x1 - x0 for x0, x1 in seen), 2.0, seen)
+        for x0, x1 in seen:
+            self.assertGreaterEqual(x0, sight_x0 - 0.3, seen)
+            self.assertLessEqual(x1, sight_x1 + 0.3, seen)
+        across = np.arange(3.7, 5.5, 0.01)  # the opening, all of it in sight (pieces may meet in it)
+        self.assertTrue(all(any(x0 - 0.01 <= x <= x1 + 0.01 for x0, x1 in seen) for x in across), seen)
         los_points = fused.detections["line_of_sight"]
         on_back = los_points[np.abs(los_points[:, 1] + 3.0) < 0.3]
         self.assertGreaterEqual(on_back.shape[0], 2)
-        self.assertTrue(np.all((on_back[:, 0] > 3.5) & (on_back[:, 0] < 5.7)), on_back)
+        self.assertTrue(np.all((on_back[:, 0] > sight_x0 - 0.3) & (on_back[:, 0] < sight_x1 + 0.3)), on_back)
 
-        unsplit = back_wall(mapped_with(sc, res, CLASS_SPLIT_MIN_POSES=0))
+        unsplit = back_wall(mapped_with(sc, res, CLASS_SPLIT_MIN_POSES=0, OPENING_MIN_POSES=0))
         self.assertTrue(unsplit and all(w.cls == "hidden" for w in unsplit), unsplit)
 
     def test_open_doorway_found_and_the_wall_cut_there(self):
@@ -1154,7 +1167,9 @@ class qa_wall_refinement(gr_unittest.TestCase):
         xs = sorted((fused.openings[0].start_m[0], fused.openings[0].end_m[0]))
         self.assertLess(abs(xs[0] - 2.05), 0.2, xs)
         self.assertLess(abs(xs[1] - 2.95), 0.2, xs)
-        self.assertEqual(mapped_with(sc, res, OPENING_LEAK_WAYS=(False,)).openings, [])
+        # (with the doorway's run under OPENING_GAIN_RATIO alone, as until 2026-11-30: the
+        # rule of a run under OPENING_EDGE_RATIO finds this door either way)
+        self.assertEqual(mapped_with(sc, res, OPENING_LEAK_WAYS=(False,), OPENING_EDGE_RATIO=None).openings, [])
 
     def test_room_behind_an_open_door_in_sight_up_to_its_partitions(self):
         """The corridor above with its open door at x = 2.05-2.95 m in a room between
