@@ -49,6 +49,17 @@ def wall_near(fused, y, cls=None):
     return min(candidates, key=lambda w: abs(0.5 * (w.start_m[1] + w.end_m[1]) - y))
 
 
+class _SideWallScores:
+    """A stand-in for the CSI refiner in the side-wall search's tests: every pose sees every
+    wall; subclasses score the hypotheses (side_wall_scores) and note what was searched."""
+
+    def __init__(self, count):
+        self.poses, self.runs, self.windows = set(range(count)), [], []
+
+    def sees(self, g, k):
+        return True
+
+
 class qa_wall_fusion(gr_unittest.TestCase):
     def tearDown(self):
         free_finished_flowgraphs()
@@ -1347,13 +1358,7 @@ class qa_wall_fusion(gr_unittest.TestCase):
         south = {"centre": np.array([10.0, -1.0]), "normal": np.array([0.0, 1.0]), "direction": np.array([1.0, 0.0]),
                  "t0": -10.0, "t1": 10.0, "members": np.arange(poses.shape[0])}
 
-        class Scores:
-            def __init__(self, count):
-                self.poses, self.runs = set(range(count)), []
-
-            def sees(self, g, k):
-                return True
-
+        class Scores(_SideWallScores):
             def side_wall_scores(self, point, toward, offsets_t, groups, tilts_rad):
                 self.runs.append((min(groups), max(groups)))
                 share = 0.30 * np.mean(np.asarray(groups) < 50)
@@ -1397,13 +1402,7 @@ class qa_wall_fusion(gr_unittest.TestCase):
                      "direction": np.array([1.0, 0.0]), "t0": -5.0, "t1": 5.0, "members": np.arange(poses.shape[0])}
             return {"walls": [south], "group": np.arange(poses.shape[0])}
 
-        class Scores:
-            def __init__(self, count):
-                self.poses, self.windows = set(range(count)), []
-
-            def sees(self, g, k):
-                return True
-
+        class Scores(_SideWallScores):
             def side_wall_scores(self, point, toward, offsets_t, groups, tilts_rad):
                 across = point[1] + offsets_t * toward[1]  # the hypotheses' y where they cross x = 5
                 parallel = int(np.argmin(np.abs(tilts_rad)))
