@@ -219,9 +219,9 @@ def run_scene(name, out, extra, seed=None):
     raw = evaluation.score_map(measured_as_detections(map_path), truth)
     # the map's shape: its frame's turn about the first pose taken out (thrumapper-eval --align)
     try:
-        aligned = json.loads(quiet(evaluation_cli, [map_path, truth, "--json", "--align"]))
+        aligned = evaluation.score_map(evaluation.align_to_truth(map_path, truth)[0], truth)
         aligned_rms = aligned["classes"]["line_of_sight"]["detections"]["rms_m"]
-    except RuntimeError:  # a single pose: nothing to align by
+    except evaluation.MapFormatError:  # a single pose: no trajectory to align by
         aligned_rms = None
     with open(stats_path, encoding="utf-8") as handle:
         stats = json.load(handle)
